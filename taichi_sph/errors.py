@@ -1,0 +1,37 @@
+"""The project's exception types: user errors become one line and an exit code in the CLI."""
+
+from __future__ import annotations
+
+EXIT_OK = 0
+EXIT_USAGE = 2
+EXIT_UNSTABLE = 3
+EXIT_INTERRUPTED = 130
+
+
+class SPHError(Exception):
+    """Base class for errors that are the user's to fix (bad config, bad arguments, missing driver)."""
+
+    exit_code: int = EXIT_USAGE
+
+
+class ConfigError(SPHError):
+    """A config file or override is invalid. The message names the file, the key and the allowed values."""
+
+    def __init__(self, message: str, *, source: str | None = None, key: str | None = None) -> None:
+        self.source = source
+        self.key = key
+        parts = []
+        if source:
+            parts.append(str(source))
+        if key:
+            parts.append(f"key '{key}'")
+        prefix = ": ".join(parts)
+        super().__init__(f"{prefix}: {message}" if prefix else message)
+
+
+class UsageError(SPHError):
+    """Bad command-line usage."""
+
+
+class RenderUnavailable(SPHError):
+    """Offscreen rendering cannot start (no Vulkan driver)."""
