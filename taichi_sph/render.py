@@ -319,11 +319,12 @@ class FrameRenderer:
         self._radius = max(1.0, radius_w * s) / self.plot_h
 
     def _frame_3d(self) -> None:
-        """Default camera: look at the domain centre from in front (+z) and above (+y), whole domain in view."""
+        """Default camera: z is up (gravity along the last axis); look at the domain centre from in front
+        (-y) and above (+z), whole domain in view."""
         centre = 0.5 * (self.lo + self.hi)
         reach = 0.5 * float(np.linalg.norm(self.hi - self.lo)) + self.dx
         fov = 45.0
-        direction = np.array([0.35, 0.6, 1.0]) / np.linalg.norm([0.35, 0.6, 1.0])
+        direction = np.array([0.35, -1.0, 0.6]) / np.linalg.norm([0.35, -1.0, 0.6])
         s = self.settings
         for key, vec in (("camera_position", s.camera_position), ("camera_lookat", s.camera_lookat)):
             if vec is not None and len(vec) != 3:
@@ -411,13 +412,13 @@ class FrameRenderer:
         cam = self._camera
         cam.position(*self.cam_pos)
         cam.lookat(*self.cam_lookat)
-        cam.up(0.0, 1.0, 0.0)
+        cam.up(0.0, 0.0, 1.0)
         cam.fov(self.fov)
         cam.z_far(max(100.0, 10.0 * float(np.linalg.norm(self.cam_pos - self.cam_lookat))))
         scene = self._scene
         scene.set_camera(cam)
         scene.ambient_light((0.35, 0.35, 0.35))
-        scene.point_light(pos=tuple(self.cam_pos + np.array([0.0, self.reach, 0.0])), color=(0.7, 0.7, 0.7))
+        scene.point_light(pos=tuple(self.cam_pos + np.array([0.0, 0.0, self.reach])), color=(0.7, 0.7, 0.7))
         if order.size:
             with _quiet_taichi():
                 scene.particles(self._pos, radius=self._radius, per_vertex_color=self._rgb, index_count=int(order.size))

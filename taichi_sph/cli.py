@@ -1,0 +1,219 @@
+"""`taichi-sph` command line: run | check | list | compare | sweep | stability | bench | render | config-doc.
+
+User errors (bad config, bad arguments, missing driver) print one line and exit 2; an unstable
+run exits 3; Ctrl-C exits 130 with a checkpoint. Tracebacks are for bugs only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from .errors import EXIT_INTERRUPTED, EXIT_USAGE, SPHError, UsageError
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse that raises UsageError (one line, exit 2) instead of printing usage and exiting."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        raise UsageError(f"{self.prog}: {message} (see `{self.prog} --help`)")
+
+
+def _add_common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
+                   help="override a config key, e.g. --set particles.dx=0.01 (repeatable)")
+    p.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu", "auto"), help="Taichi backend (default: config)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or log lines")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="taichi-sph", description="SPH fluid simulation (WCSPH and ISPH) in Taichi, driven from YAML.")
+    sub = parser.add_subparsers(dest="command", parser_class=_Parser, metavar="COMMAND")
+
+    p = sub.add_parser("run", help="run a scene")
+    p.add_argument("config", help="YAML config file (see `taichi-sph list`)")
+    p.add_argument("--solver", choices=("wcsph", "isph"), help="override the config's solver")
+    p.add_argument("--out", help="run folder (default renders/<config name>-<solver>)")
+    p.add_argument("--t-end", type=float, help="simulated end time [s]")
+    p.add_argument("--no-render", action="store_true", help="skip frames and video (the renderer is not even imported)")
+    p.add_argument("--explain", action="store_true", help="print the compiled-in features and the a-priori checks, then exit")
+    _add_common(p)
+
+    p = sub.add_parser("check", help="validate a config and print the a-priori warnings")
+    p.add_argument("config")
+    p.add_argument("--solver", choices=("wcsph", "isph"))
+    _add_common(p)
+
+    sub.add_parser("list", help="bundled configs with their descriptions")
+    sub.add_parser("config-doc", help="print the config reference (every key, default, unit)")
+
+    p = sub.add_parser("render", help="re-render frames and video of a run folder from its snapshots")
+    p.add_argument("run_dir")
+    p.add_argument("--colour-by", choices=("speed", "pressure", "density_error", "kind"))
+    p.add_argument("--video", choices=("mp4", "gif", "none"))
+
+    p = sub.add_parser("bench", help="particle-steps/s, compile time and memory")
+    p.add_argument("--particles", default="10000,100000", help="comma-separated particle counts (default 10000,100000)")
+    p.add_argument("--dims", default="2,3", help="comma-separated dimensions (default 2,3)")
+    p.add_argument("--solver", default="wcsph", choices=("wcsph", "isph"))
+    p.add_argument("--steps", type=int, default=100, help="timed steps per case")
+    p.add_argument("--pysph-scene", action="store_true", help="also time PySPH's 2D dam break scene to t = 0.7 s")
+    p.add_argument("--json", help="write the table as JSON here too")
+    _add_common(p)
+
+    for name, helptext in (("compare", "run WCSPH and ISPH on the same scene and compare"),
+                           ("sweep", "error against run time over resolutions"),
+                           ("stability", "stiff and extreme cases, a table of verdicts")):
+        p = sub.add_parser(name, help=helptext)
+        if name == "stability":
+            p.add_argument("configs", nargs="*", help="extra configs to classify")
+        else:
+            p.add_argument("config")
+        p.add_argument("--out", help="output folder")
+        if name == "sweep":
+            p.add_argument("--dx", help="comma-separated particle spacings")
+            p.add_argument("--solvers", default="wcsph,isph")
+        if name in ("compare", "stability"):
+            p.add_argument("--no-render", action="store_true")
+        _add_common(p)
+    return parser
+
+
+def _load(args) -> "object":
+    from .config import load_config
+    overrides = list(args.overrides)
+    if getattr(args, "solver", None) and not isinstance(args.solver, list):
+        overrides.append(f"solver={args.solver}")
+    if getattr(args, "arch", None):
+        overrides.append(f"arch={args.arch}")
+    if getattr(args, "t_end", None) is not None:
+        if args.t_end <= 0:
+            raise UsageError(f"--t-end must be > 0, got {args.t_end}")
+        overrides.append(f"time.t_end={args.t_end}")
+    return load_config(args.config, overrides)
+
+
+def cmd_run(args) -> int:
+    from .checks import a_priori_checks
+    cfg = _load(args)
+    if args.explain:
+        from .features import Features
+        from .geometry import build_particles
+        arrays = build_particles(cfg)
+        feats = Features.from_config(cfg, arrays.n_wall)
+        print(f"{cfg.name}: {cfg.solver}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles")
+        print("compiled in: " + ", ".join(feats.compiled_in()))
+        for c in a_priori_checks(cfg):
+            print(f"warning: {c.message}")
+        return 0
+    from .simulation import Simulation
+    out = Path(args.out) if args.out else Path("renders") / f"{cfg.name}-{cfg.solver}"
+    result = Simulation(cfg, out, render=not args.no_render, quiet=args.quiet).run()
+    s = result.summary
+    if not args.quiet:
+        line = (f"{s['status']}: {s['steps']} steps to t = {s['t_end']:.4g} s in {s['wall_time_s']:.1f} s "
+                f"(+{s['compile_time_s']:.1f} s compile), {s['particle_steps_per_s'] / 1e6:.2f} M particle-steps/s")
+        print(line)
+        if s["errors"]:
+            print("errors: " + ", ".join(f"{k} = {v:.4g}" if isinstance(v, float) else f"{k} = {v}"
+                                         for k, v in s["errors"].items()))
+        if "instability" in s:
+            inst = s["instability"]
+            print(f"unstable: {inst['criterion']} at step {inst['step']}, t = {inst['t']:.4g} s, particle {inst['particle']}: "
+                  f"{inst['detail']}; last good state kept in {out}/snapshots")
+        print(f"output: {out}")
+    return result.exit_code
+
+
+def cmd_check(args) -> int:
+    from .checks import a_priori_checks
+    cfg = _load(args)
+    checks = a_priori_checks(cfg)
+    print(f"{args.config}: valid ({cfg.solver}, dim {cfg.dim}, dx {cfg.particles.dx:g}, c0 {cfg.sound_speed:.4g} m/s)")
+    for c in checks:
+        print(f"warning: {c.message}")
+    return 0
+
+
+def cmd_list(args) -> int:
+    from .config import bundled_configs_dir, load_raw
+    d = bundled_configs_dir()
+    for path in sorted(d.glob("*.yaml")):
+        try:
+            desc = load_raw(path).get("description", "")
+        except SPHError as e:
+            desc = f"(invalid: {e})"
+        print(f"{path.stem:28s} {desc}")
+    return 0
+
+
+def cmd_config_doc(args) -> int:
+    from .config import config_reference
+    print(config_reference())
+    return 0
+
+
+def cmd_render(args) -> int:
+    run_dir = Path(args.run_dir)
+    if not (run_dir / "snapshots").is_dir():
+        raise UsageError(f"{run_dir}: no snapshots/ folder; pass a run folder written by `taichi-sph run`")
+    from dataclasses import replace
+    from .render import RenderSettings, render_run
+    settings = RenderSettings()
+    if args.colour_by:
+        settings = replace(settings, colour_by=args.colour_by)
+    if args.video:
+        settings = replace(settings, video=args.video)
+    frames = render_run(run_dir, settings)
+    print(f"{len(frames)} frames written to {run_dir / 'frames'}")
+    return 0
+
+
+def _dispatch(args) -> int:
+    if args.command == "run":
+        return cmd_run(args)
+    if args.command == "check":
+        return cmd_check(args)
+    if args.command == "list":
+        return cmd_list(args)
+    if args.command == "config-doc":
+        return cmd_config_doc(args)
+    if args.command == "render":
+        return cmd_render(args)
+    if args.command == "bench":
+        from .bench import cmd_bench
+        return cmd_bench(args)
+    if args.command == "compare":
+        from .compare import cmd_compare
+        return cmd_compare(args)
+    if args.command == "sweep":
+        from .sweep import cmd_sweep
+        return cmd_sweep(args)
+    if args.command == "stability":
+        from .stability import cmd_stability
+        return cmd_stability(args)
+    raise UsageError("taichi-sph: give a command: run, check, list, compare, sweep, stability, bench, render "
+                     "(see `taichi-sph --help`)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    try:
+        args = parser.parse_args(argv)
+        return _dispatch(args)
+    except SPHError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+
+def entry() -> None:
+    sys.exit(main())
+
+
+if __name__ == "__main__":
+    entry()

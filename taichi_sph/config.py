@@ -1,0 +1,615 @@
+"""Configuration: YAML (+ `extends:`) -> overrides -> validated, frozen dataclasses.
+
+Every key, its default, unit and allowed values is declared once, here, in the dataclass
+fields' metadata; `taichi-sph config-doc` prints the reference that README.md carries.
+Every refusal is a ConfigError naming the file, the key and what is allowed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import types
+import typing
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Union
+
+import yaml
+
+from .errors import ConfigError
+
+AUTO = "auto"
+
+
+def opt(default: Any = dataclasses.MISSING, doc: str = "", *, unit: str = "", choices: tuple | None = None,
+        minimum: float | None = None, positive: bool = False, factory: Any = None) -> Any:
+    """A documented config key: default, doc string, unit, allowed values and bounds."""
+    meta = dict(doc=doc, unit=unit, choices=choices, minimum=minimum, positive=positive)
+    if factory is not None:
+        return field(default_factory=factory, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+# ----------------------------------------------------------------------------- schema
+@dataclass(frozen=True)
+class Domain:
+    lo: tuple[float, ...] = opt((0.0, 0.0), "lower corner of the simulation domain; particles leaving it make the run unstable", unit="m")
+    hi: tuple[float, ...] = opt((1.0, 1.0), "upper corner of the simulation domain", unit="m")
+    periodic: tuple[bool, ...] | None = opt(None, "per-axis periodicity (list of dim booleans); default none periodic")
+
+
+@dataclass(frozen=True)
+class Particles:
+    dx: float = opt(0.02, "initial particle spacing", unit="m", positive=True)
+    hdx: float = opt(1.3, "smoothing length over spacing, h = hdx * dx", positive=True)
+    kernel: str = opt("wendland_c2", "smoothing kernel", choices=("cubic_spline", "wendland_c2", "wendland_c4",
+                                                                  "quintic_spline", "gaussian", "poly6_spiky"))
+    max_neighbors: int | str = opt(AUTO, "capacity of each particle's neighbour list ('auto': 2.5x the lattice count)")
+
+
+@dataclass(frozen=True)
+class Fluid:
+    rho0: float = opt(1000.0, "rest density", unit="kg/m^3", positive=True)
+    c0: float | str = opt(AUTO, "artificial sound speed (WCSPH); 'auto' = c0_factor x reference_speed", unit="m/s")
+    c0_factor: float = opt(10.0, "c0 / reference_speed when c0 is 'auto' (10 keeps density errors near 1%)", positive=True)
+    reference_speed: float | None = opt(None, "the largest flow speed the scene expects, e.g. sqrt(2 g H) for a dam break", unit="m/s", positive=True)
+    gamma: float = opt(7.0, "Tait exponent, p = B((rho/rho0)^gamma - 1), B = c0^2 rho0 / gamma", positive=True)
+    nu: float = opt(0.0, "kinematic viscosity (laminar, Morris et al. 1997 form); 0 compiles it out", unit="m^2/s", minimum=0.0)
+    background_pressure: float = opt(0.0, "constant added to the equation of state (p_b); keeps pressure positive in closed flows", unit="Pa", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class Body:
+    type: str = opt("fluid_block", "what the body is", choices=("fluid_block", "fluid_sphere", "wall_box", "wall_block"))
+    lo: tuple[float, ...] | None = opt(None, "box lower corner (fluid_block, wall_block; inner lower corner of wall_box)", unit="m")
+    hi: tuple[float, ...] | None = opt(None, "box upper corner (inner upper corner of wall_box)", unit="m")
+    center: tuple[float, ...] | None = opt(None, "fluid_sphere centre (a circle in 2D, a segment in 1D)", unit="m")
+    radius: float | None = opt(None, "fluid_sphere radius", unit="m", positive=True)
+    layers: int = opt(3, "wall_box: number of particle layers outside the inner box", minimum=1)
+    open_top: bool = opt(True, "wall_box: no wall on the top face (highest axis)")
+    velocity: tuple[Any, ...] | None = opt(None, "initial velocity (fluid) or prescribed velocity (wall): dim numbers, or dim "
+                                           "expressions of x, y, z, t-free (numpy functions sin, cos, exp, sqrt, pi, ...)", unit="m/s")
+    hydrostatic: bool = opt(False, "fluid_block/fluid_sphere: start with hydrostatic density for the given gravity (free surface at the body top)")
+
+
+@dataclass(frozen=True)
+class Reflecting:
+    enabled: bool = opt(False, "reflect particles at the non-periodic domain faces (simple elastic floor/walls)")
+    restitution: float = opt(1.0, "normal velocity kept after a reflection, 0..1", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class DensityDiffusion:
+    model: str = opt("none", "delta-SPH density diffusion: Molteni & Colagrossi 2009, or with the hydrostatic "
+                              "part removed (Fourtakas et al. 2019)", choices=("none", "molteni", "fourtakas"))
+    delta: float = opt(0.1, "diffusion coefficient delta", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class ArtificialViscosity:
+    alpha: float = opt(0.0, "Monaghan (1992) linear coefficient; 0 (with beta 0) compiles it out", minimum=0.0)
+    beta: float = opt(0.0, "Monaghan quadratic coefficient", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class TensileCorrection:
+    enabled: bool = opt(False, "Monaghan (2000) artificial pressure against the tensile instability")
+    epsilon: float = opt(0.2, "strength: R = epsilon |p| / rho^2 for negative pressures", minimum=0.0)
+    n: float = opt(4.0, "exponent of f = W(r)/W(dx)", positive=True)
+
+
+@dataclass(frozen=True)
+class Shifting:
+    enabled: bool | None = opt(None, "particle shifting (Lind et al. 2012 form, free-surface aware); None = on for ISPH, off for WCSPH")
+    coefficient: float = opt(2.0, "A in the shift dr_a = -D grad C_a with D = A h |v_a| dt (Skillen et al. 2013)", minimum=0.0)
+    max_shift: float = opt(0.1, "cap on |dr_a| per step, as a fraction of dx", positive=True)
+
+
+@dataclass(frozen=True)
+class Walls:
+    slip: str = opt("no_slip", "wall condition for viscous terms (Adami et al. 2012 velocity extrapolation)", choices=("no_slip", "free_slip"))
+
+
+@dataclass(frozen=True)
+class WCSPH:
+    density: str = opt("continuity", "density evolution", choices=("continuity", "summation"))
+    integrator: str = opt("symplectic_euler", "time integrator", choices=("symplectic_euler", "leapfrog"))
+    density_diffusion: DensityDiffusion = opt(factory=DensityDiffusion, doc="delta-SPH term")
+    artificial_viscosity: ArtificialViscosity = opt(factory=ArtificialViscosity, doc="Monaghan artificial viscosity")
+    tensile_correction: TensileCorrection = opt(factory=TensileCorrection, doc="Monaghan tensile correction")
+    clamp_negative_pressure: bool = opt(False, "clamp p >= 0 (free-surface flows with summation density)")
+
+
+@dataclass(frozen=True)
+class PPE:
+    solver: str = opt("cg", "pressure Poisson solver, matrix-free", choices=("cg", "jacobi"))
+    tolerance: float = opt(1e-4, "relative residual ||b - A p|| / ||b|| to stop at", positive=True)
+    max_iterations: int = opt(1000, "iteration cap; reaching it is a warning in the summary", minimum=1)
+    omega: float = opt(0.6, "weighted-Jacobi relaxation factor", positive=True)
+
+
+@dataclass(frozen=True)
+class ISPH:
+    source: str = opt("blend", "PPE source: divergence of the intermediate velocity (Cummins & Rudman 1999), density "
+                                "invariance (Shao & Lo 2003), or blend", choices=("divergence", "density_invariance", "blend"))
+    blend: float = opt(0.1, "weight of the density-invariance source in 'blend'", minimum=0.0)
+    ppe: PPE = opt(factory=PPE, doc="PPE solver settings")
+    free_surface_threshold: float = opt(0.8, "a particle is free-surface when its kernel sum / lattice kernel sum is below this", positive=True)
+
+
+@dataclass(frozen=True)
+class Time:
+    t_end: float = opt(1.0, "simulated end time", unit="s", positive=True)
+    dt: float | str = opt(AUTO, "time step: 'auto' (adaptive) or a fixed value", unit="s")
+    cfl: float = opt(0.25, "Courant number for the adaptive step", positive=True)
+    dt_max: float | None = opt(None, "upper bound of the adaptive step (ISPH flows starting at rest)", unit="s", positive=True)
+
+
+@dataclass(frozen=True)
+class Guards:
+    max_density_error: float = opt(0.2, "|rho - rho0| / rho0 beyond which the run is declared unstable", positive=True)
+    check_every: int = opt(20, "steps between stability checks", minimum=1)
+
+
+@dataclass(frozen=True)
+class Output:
+    every: float = opt(0.02, "simulated time between output rows (timeseries, probes, metrics)", unit="s", positive=True)
+    snapshot_every: float | None = opt(None, "simulated time between NPZ/VTU snapshots; None = at the end only", unit="s", positive=True)
+
+
+@dataclass(frozen=True)
+class Render:
+    enabled: bool = opt(True, "write frames and a video (also off with --no-render)")
+    every: float = opt(0.02, "simulated time between frames", unit="s", positive=True)
+    width: int = opt(960, "frame width", unit="px", minimum=16)
+    height: int = opt(540, "frame height", unit="px", minimum=16)
+    colour_by: str = opt("speed", "field the particles are coloured by", choices=("speed", "pressure", "density_error", "kind"))
+    range: tuple[float, ...] | None = opt(None, "fixed colour range [lo, hi]; None = automatic")
+    show_walls: bool = opt(True, "draw wall particles (faint grey)")
+    camera_position: tuple[float, ...] | None = opt(None, "3D camera position; None = framing the domain", unit="m")
+    camera_lookat: tuple[float, ...] | None = opt(None, "3D camera target; None = domain centre", unit="m")
+    video: str = opt("mp4", "video assembled from the frames", choices=("mp4", "gif", "none"))
+    fps: int = opt(30, "video frame rate", minimum=1)
+    particle_scale: float = opt(1.0, "drawn radius = 0.5 dx x this", positive=True)
+
+
+@dataclass(frozen=True)
+class Probe:
+    name: str = opt("probe", "column name in timeseries.csv")
+    quantity: str = opt("pressure", "what the probe measures (kernel-weighted over fluid)", choices=("pressure", "velocity_x", "density"))
+    position: tuple[float, ...] = opt((0.0, 0.0), "probe location", unit="m")
+
+
+@dataclass(frozen=True)
+class Metric:
+    type: str = opt("hydrostatic", "reference metric written to summary.json errors",
+                    choices=("hydrostatic", "surge_front", "taylor_green", "poiseuille", "cavity", "column_fall"))
+    depth: float | None = opt(None, "hydrostatic: fluid depth H", unit="m")
+    floor: float = opt(0.0, "hydrostatic / surge_front: floor height", unit="m")
+    column_width: float | None = opt(None, "surge_front: column width a", unit="m")
+    origin: float = opt(0.0, "surge_front: x of the wall the column leans on", unit="m")
+    t_max: float = opt(3.0, "surge_front: last dimensionless time T compared")
+    lid_velocity: float = opt(1.0, "cavity: lid speed", unit="m/s")
+    width: float = opt(1.0, "poiseuille / cavity: channel or cavity width", unit="m")
+
+
+@dataclass(frozen=True)
+class Config:
+    name: str = opt("", "scene name (default: the file's stem)")
+    description: str = opt("", "one line shown by `taichi-sph list`")
+    dim: int = opt(2, "spatial dimension", choices=(1, 2, 3))
+    solver: str = opt("wcsph", "time-stepping scheme", choices=("wcsph", "isph"))
+    precision: str = opt("f32", "floating-point precision of all fields", choices=("f32", "f64"))
+    arch: str = opt("cpu", "Taichi backend", choices=("cpu", "cuda", "vulkan", "gpu", "auto"))
+    seed: int = opt(0, "random seed (initial jitter, random velocity expressions)")
+    gravity: tuple[float, ...] | None = opt(None, "body acceleration (dim numbers); None or zeros compiles it out", unit="m/s^2")
+    domain: Domain = opt(factory=Domain, doc="simulation box")
+    particles: Particles = opt(factory=Particles, doc="discretisation")
+    fluid: Fluid = opt(factory=Fluid, doc="material")
+    bodies: tuple[Body, ...] = opt((), "fluid and wall bodies (list)")
+    reflecting: Reflecting = opt(factory=Reflecting, doc="reflecting domain faces")
+    walls: Walls = opt(factory=Walls, doc="wall boundary condition")
+    wcsph: WCSPH = opt(factory=WCSPH, doc="WCSPH options")
+    isph: ISPH = opt(factory=ISPH, doc="ISPH options")
+    shifting: Shifting = opt(factory=Shifting, doc="particle shifting")
+    time: Time = opt(factory=Time, doc="time stepping")
+    guards: Guards = opt(factory=Guards, doc="stability guards")
+    output: Output = opt(factory=Output, doc="output cadence")
+    render: Render = opt(factory=Render, doc="offscreen rendering")
+    probes: tuple[Probe, ...] = opt((), "point probes (list)")
+    metrics: tuple[Metric, ...] = opt((), "reference metrics (list)")
+
+    # -- derived quantities ------------------------------------------------------------
+    @property
+    def h(self) -> float:
+        """Smoothing length h = hdx * dx."""
+        return self.particles.hdx * self.particles.dx
+
+    @property
+    def periodic(self) -> tuple[bool, ...]:
+        return self.domain.periodic if self.domain.periodic is not None else (False,) * self.dim
+
+    @property
+    def gravity_vector(self) -> tuple[float, ...]:
+        return self.gravity if self.gravity is not None else (0.0,) * self.dim
+
+    @property
+    def has_gravity(self) -> bool:
+        return any(g != 0.0 for g in self.gravity_vector)
+
+    @property
+    def sound_speed(self) -> float:
+        """c0: the given value, or c0_factor x reference_speed."""
+        if self.fluid.c0 != AUTO:
+            return float(self.fluid.c0)
+        return self.fluid.c0_factor * self.expected_speed
+
+    @property
+    def expected_speed(self) -> float:
+        """The scene's declared reference speed, else sqrt(2 |g| H_domain), else 1 m/s."""
+        if self.fluid.reference_speed is not None:
+            return self.fluid.reference_speed
+        g = math.sqrt(sum(x * x for x in self.gravity_vector))
+        if g > 0:
+            height = self.domain.hi[-1] - self.domain.lo[-1]
+            return math.sqrt(2.0 * g * height)
+        return 1.0
+
+    @property
+    def shifting_enabled(self) -> bool:
+        if self.shifting.enabled is None:
+            return self.solver == "isph"
+        return self.shifting.enabled
+
+
+# ----------------------------------------------------------------------------- generic loader
+def _is_dataclass_type(tp: Any) -> bool:
+    return isinstance(tp, type) and dataclasses.is_dataclass(tp)
+
+
+def _allowed(tp: Any) -> str:
+    origin = typing.get_origin(tp)
+    if origin in (Union, types.UnionType):
+        return " or ".join(_allowed(a) for a in typing.get_args(tp))
+    if tp is type(None):
+        return "null"
+    if origin is tuple:
+        return f"a list of {_allowed(typing.get_args(tp)[0])}"
+    if _is_dataclass_type(tp):
+        return "a mapping"
+    if tp is Any:
+        return "a value"
+    return {float: "a number", int: "an integer", bool: "true/false", str: "a string"}.get(tp, str(tp))
+
+
+def _convert(value: Any, tp: Any, key: str, source: str) -> Any:
+    """Convert a YAML value to the annotated type or raise ConfigError naming the key."""
+    origin = typing.get_origin(tp)
+    if origin in (Union, types.UnionType):
+        args = typing.get_args(tp)
+        if value is None and type(None) in args:
+            return None
+        if isinstance(value, str) and str in args:
+            if value == AUTO or args == (str,):
+                return value
+        errors = []
+        for a in args:
+            if a is type(None) or a is str:
+                continue
+            try:
+                return _convert(value, a, key, source)
+            except ConfigError as e:
+                errors.append(e)
+        allowed = _allowed(tp).replace("a string", f"'{AUTO}'")
+        raise ConfigError(f"got {value!r}; allowed: {allowed}", source=source, key=key)
+    if tp is Any:
+        return value
+    if _is_dataclass_type(tp):
+        if not isinstance(value, dict):
+            raise ConfigError(f"expected a mapping, got {value!r}", source=source, key=key)
+        return build_dataclass(tp, value, source, prefix=key)
+    if origin is tuple:
+        (item_tp, *_rest) = typing.get_args(tp)
+        if not isinstance(value, (list, tuple)):
+            raise ConfigError(f"expected a list, got {value!r}", source=source, key=key)
+        return tuple(_convert(v, item_tp, f"{key}[{i}]", source) for i, v in enumerate(value))
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        raise ConfigError(f"expected true or false, got {value!r}", source=source, key=key)
+    if tp is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise ConfigError(f"expected an integer, got {value!r}", source=source, key=key)
+        return value
+    if tp is float:
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ConfigError(f"expected a number, got {value!r}", source=source, key=key)
+        if not math.isfinite(value):
+            raise ConfigError(f"expected a finite number, got {value!r}", source=source, key=key)
+        return float(value)
+    if tp is str:
+        if not isinstance(value, str):
+            raise ConfigError(f"expected a string, got {value!r}", source=source, key=key)
+        return value
+    raise TypeError(f"unsupported schema type {tp}")  # a bug in the schema, not the user's
+
+
+def _check_field_rules(f: dataclasses.Field, value: Any, key: str, source: str) -> None:
+    meta = f.metadata
+    if value is None or isinstance(value, str) and value == AUTO and meta.get("choices") is None:
+        return
+    choices = meta.get("choices")
+    if choices is not None and value not in choices:
+        allowed = ", ".join(str(c) for c in choices)
+        raise ConfigError(f"unknown value {value!r}; allowed: {allowed}", source=source, key=key)
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        if meta.get("positive") and not value > 0:
+            raise ConfigError(f"must be > 0, got {value!r}", source=source, key=key)
+        if meta.get("minimum") is not None and value < meta["minimum"]:
+            raise ConfigError(f"must be >= {meta['minimum']}, got {value!r}", source=source, key=key)
+
+
+def build_dataclass(cls: type, data: dict, source: str, prefix: str = "") -> Any:
+    """Validate a mapping against dataclass `cls` (unknown keys refused) and build it."""
+    hints = typing.get_type_hints(cls)
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    unknown = [k for k in data if k not in fields]
+    if unknown:
+        k = unknown[0]
+        full = f"{prefix}.{k}" if prefix else str(k)
+        raise ConfigError(f"unknown key; allowed keys here: {', '.join(fields)}", source=source, key=full)
+    kwargs = {}
+    for name, value in data.items():
+        full = f"{prefix}.{name}" if prefix else name
+        if name == "bodies":
+            value = [_body(v, f"{full}[{i}]", source) for i, v in enumerate(value or [])]
+        converted = _convert(value, hints[name], full, source)
+        _check_field_rules(fields[name], converted, full, source)
+        kwargs[name] = converted
+    return cls(**kwargs)
+
+
+def _body(value: Any, key: str, source: str) -> Any:
+    if not isinstance(value, dict):
+        raise ConfigError(f"each body is a mapping with a 'type', got {value!r}", source=source, key=key)
+    return value
+
+
+# ----------------------------------------------------------------------------- YAML, extends, overrides
+def _read_yaml(path: Path) -> dict:
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ConfigError("file not found; `taichi-sph list` shows the bundled configs", source=str(path)) from None
+    except OSError as e:
+        raise ConfigError(f"cannot read file ({e.strerror})", source=str(path)) from None
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
+        problem = getattr(e, "problem", None) or "invalid YAML"
+        raise ConfigError(f"invalid YAML{where}: {problem}", source=str(path)) from None
+    if data is None:
+        data = {}
+    if not isinstance(data, dict):
+        raise ConfigError("the top level must be a mapping of keys", source=str(path))
+    return data
+
+
+def _deep_merge(base: dict, top: dict) -> dict:
+    out = dict(base)
+    for k, v in top.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _deep_merge(out[k], v)
+        else:
+            out[k] = v
+    return out
+
+
+def load_raw(path: Path, _seen: tuple[Path, ...] = ()) -> dict:
+    """Read a YAML config, resolving `extends:` (relative to the file) recursively."""
+    path = Path(path)
+    if path.resolve() in _seen:
+        raise ConfigError("circular 'extends'", source=str(path), key="extends")
+    data = _read_yaml(path)
+    parent = data.pop("extends", None)
+    if parent is not None:
+        if not isinstance(parent, str):
+            raise ConfigError(f"expected a file name, got {parent!r}", source=str(path), key="extends")
+        parent_path = (path.parent / parent)
+        if not parent_path.exists():
+            raise ConfigError(f"extended file '{parent}' not found next to this config", source=str(path), key="extends")
+        data = _deep_merge(load_raw(parent_path, _seen + (path.resolve(),)), data)
+    return data
+
+
+def parse_override(text: str) -> tuple[list[str], Any]:
+    """`a.b.c=value` -> (['a','b','c'], typed value parsed as YAML)."""
+    if "=" not in text:
+        raise ConfigError(f"override '{text}' must look like KEY=VALUE, e.g. particles.dx=0.01", source="--set")
+    key, _, raw = text.partition("=")
+    key = key.strip()
+    if not key or any(not part for part in key.split(".")):
+        raise ConfigError(f"override '{text}' has an empty key", source="--set")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError:
+        value = raw
+    return key.split("."), value
+
+
+def apply_overrides(data: dict, overrides: list[str]) -> dict:
+    """Apply `--set a.b=value` overrides; keys must exist in the schema."""
+    data = _deep_merge({}, data)
+    for text in overrides:
+        parts, value = parse_override(text)
+        cls: Any = Config
+        node = data
+        for i, part in enumerate(parts):
+            names = {f.name: f for f in dataclasses.fields(cls)} if _is_dataclass_type(cls) else {}
+            if part not in names:
+                where = ".".join(parts[:i]) or "top level"
+                raise ConfigError(f"unknown key '{'.'.join(parts)}'; allowed at {where}: {', '.join(names)}", source="--set",
+                                  key=".".join(parts))
+            if i == len(parts) - 1:
+                node[part] = value
+            else:
+                tp = typing.get_type_hints(cls)[part]
+                if not _is_dataclass_type(tp):
+                    raise ConfigError(f"'{part}' is not a section", source="--set", key=".".join(parts))
+                child = node.get(part)
+                if not isinstance(child, dict):
+                    child = {}
+                node[part] = child = dict(child)
+                node = child
+                cls = tp
+    return data
+
+
+def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
+    """Load, merge, override and validate a config file."""
+    path = Path(path)
+    data = load_raw(path)
+    data = apply_overrides(data, overrides or [])
+    data.setdefault("name", path.stem)
+    return config_from_dict(data, str(path))
+
+
+def config_from_dict(data: dict, source: str = "<config>") -> Config:
+    """Validate a plain mapping (already merged) into a Config."""
+    data = dict(data)
+    bodies = data.get("bodies")
+    if bodies is not None and not isinstance(bodies, list):
+        raise ConfigError("expected a list of bodies", source=source, key="bodies")
+    cfg = build_dataclass(Config, data, source)
+    validate(cfg, source)
+    return cfg
+
+
+# ----------------------------------------------------------------------------- cross-field validation
+def _check_vec(value: tuple | None, dim: int, key: str, source: str) -> None:
+    if value is not None and len(value) != dim:
+        raise ConfigError(f"expected {dim} values for dim = {dim}, got {len(value)}", source=source, key=key)
+
+
+def validate(cfg: Config, source: str) -> None:
+    """Checks that need more than one key: vector lengths, geometry inside the domain, solver needs."""
+    d = cfg.dim
+    _check_vec(cfg.domain.lo, d, "domain.lo", source)
+    _check_vec(cfg.domain.hi, d, "domain.hi", source)
+    _check_vec(cfg.domain.periodic, d, "domain.periodic", source)
+    _check_vec(cfg.gravity, d, "gravity", source)
+    for a in range(d):
+        if not cfg.domain.hi[a] > cfg.domain.lo[a]:
+            raise ConfigError("domain.hi must exceed domain.lo on every axis", source=source, key="domain.hi")
+    if not cfg.bodies:
+        raise ConfigError("a scene needs at least one fluid body", source=source, key="bodies")
+    eps = 1e-9 * max(cfg.domain.hi[a] - cfg.domain.lo[a] for a in range(d))
+    n_fluid_bodies = 0
+    for i, b in enumerate(cfg.bodies):
+        key = f"bodies[{i}]"
+        if b.type in ("fluid_block", "wall_block", "wall_box"):
+            if b.lo is None or b.hi is None:
+                raise ConfigError(f"a {b.type} needs 'lo' and 'hi'", source=source, key=key)
+            _check_vec(b.lo, d, f"{key}.lo", source)
+            _check_vec(b.hi, d, f"{key}.hi", source)
+            if any(b.hi[a] <= b.lo[a] for a in range(d)):
+                raise ConfigError("'hi' must exceed 'lo' on every axis", source=source, key=f"{key}.hi")
+        if b.type == "fluid_sphere":
+            if b.center is None or b.radius is None:
+                raise ConfigError("a fluid_sphere needs 'center' and 'radius'", source=source, key=key)
+            _check_vec(b.center, d, f"{key}.center", source)
+        if b.velocity is not None:
+            _check_vec(b.velocity, d, f"{key}.velocity", source)
+            for j, comp in enumerate(b.velocity):
+                if isinstance(comp, bool) or not isinstance(comp, (int, float, str)):
+                    raise ConfigError(f"expected a number or an expression string, got {comp!r}", source=source,
+                                      key=f"{key}.velocity[{j}]")
+        if b.type.startswith("fluid"):
+            n_fluid_bodies += 1
+            lo, hi = _body_bounds(b)
+            if any(lo[a] < cfg.domain.lo[a] - eps or hi[a] > cfg.domain.hi[a] + eps for a in range(d)):
+                raise ConfigError(f"fluid body [{_fmt(lo)}]..[{_fmt(hi)}] lies outside the domain "
+                                  f"[{_fmt(cfg.domain.lo)}]..[{_fmt(cfg.domain.hi)}]", source=source, key=key)
+    if n_fluid_bodies == 0:
+        raise ConfigError("a scene needs at least one fluid body (fluid_block or fluid_sphere)", source=source, key="bodies")
+    for name, vec in (("render.range", cfg.render.range),):
+        if vec is not None and (len(vec) != 2 or vec[1] <= vec[0]):
+            raise ConfigError("expected [lo, hi] with hi > lo", source=source, key=name)
+    for key, vec in (("render.camera_position", cfg.render.camera_position), ("render.camera_lookat", cfg.render.camera_lookat)):
+        if vec is not None and len(vec) != 3:
+            raise ConfigError("expected 3 values", source=source, key=key)
+    for i, p in enumerate(cfg.probes):
+        _check_vec(p.position, d, f"probes[{i}].position", source)
+    if cfg.fluid.c0 != AUTO and (isinstance(cfg.fluid.c0, str) or cfg.fluid.c0 <= 0):
+        raise ConfigError(f"must be > 0 or 'auto', got {cfg.fluid.c0!r}", source=source, key="fluid.c0")
+    if cfg.time.dt != AUTO and (isinstance(cfg.time.dt, str) or cfg.time.dt <= 0):
+        raise ConfigError(f"must be > 0 or 'auto', got {cfg.time.dt!r}", source=source, key="time.dt")
+    mn = cfg.particles.max_neighbors
+    if mn != AUTO and (isinstance(mn, str) or mn < 1):
+        raise ConfigError(f"must be a positive integer or 'auto', got {mn!r}", source=source, key="particles.max_neighbors")
+    for a, per in enumerate(cfg.periodic):
+        if per:
+            length = cfg.domain.hi[a] - cfg.domain.lo[a]
+            support = 3.0 * cfg.h
+            if length < support:
+                raise ConfigError(f"periodic length {length:g} on axis {a} is shorter than 3 smoothing lengths; "
+                                  "use a smaller particles.dx", source=source, key="domain.periodic")
+
+
+def _body_bounds(b: Body) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    if b.type == "fluid_sphere":
+        return tuple(c - b.radius for c in b.center), tuple(c + b.radius for c in b.center)
+    return b.lo, b.hi
+
+
+def _fmt(v: tuple[float, ...]) -> str:
+    return ", ".join(f"{x:g}" for x in v)
+
+
+# ----------------------------------------------------------------------------- resolved form and docs
+def to_dict(cfg: Any) -> Any:
+    """Plain data (lists, dicts) for config.yaml."""
+    if dataclasses.is_dataclass(cfg):
+        return {f.name: to_dict(getattr(cfg, f.name)) for f in dataclasses.fields(cfg)}
+    if isinstance(cfg, tuple):
+        return [to_dict(v) for v in cfg]
+    return cfg
+
+
+def config_reference() -> str:
+    """Markdown table of every key: default, unit, meaning and allowed values."""
+    rows = ["| key | default | unit | meaning |", "|---|---|---|---|"]
+
+    def walk(cls: type, prefix: str) -> None:
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            key = f"{prefix}{f.name}"
+            tp = hints[f.name]
+            item = typing.get_args(tp)[0] if typing.get_origin(tp) is tuple else None
+            if _is_dataclass_type(tp):
+                walk(tp, key + ".")
+                continue
+            if item is not None and _is_dataclass_type(item):
+                walk(item, key + "[].")
+                continue
+            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+            doc = f.metadata.get("doc", "")
+            if f.metadata.get("choices"):
+                doc += " (one of: " + ", ".join(f"`{c}`" for c in f.metadata["choices"]) + ")"
+            dflt = "" if default is None else f"`{to_dict(default)}`"
+            rows.append(f"| `{key}` | {dflt} | {f.metadata.get('unit', '')} | {doc} |")
+
+    walk(Config, "")
+    return "\n".join(rows)
+
+
+def bundled_configs_dir() -> Path:
+    """configs/ of a source checkout, else the copy installed with the package."""
+    here = Path(__file__).resolve().parent
+    for cand in (here.parent / "configs", here / "data" / "configs"):
+        if cand.is_dir():
+            return cand
+    return here.parent / "configs"

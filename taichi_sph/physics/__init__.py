@@ -1,0 +1,1 @@
+"""One physics idea per @ti.func; the solvers compose them."""

@@ -1,0 +1,21 @@
+"""Wall boundary: Adami, Hu & Adams (2012) pressure and velocity extrapolation to wall particles."""
+
+import taichi as ti
+
+
+@ti.func
+def adami_wall_pressure(sum_pw: float, sum_rho_rw, sum_w: float, body_acc) -> float:
+    """p_w = (sum_f p_f W_wf + (g - a_w) . sum_f rho_f r_wf W_wf) / sum_f W_wf, r_wf = x_w - x_f."""
+    p = 0.0
+    if sum_w > 0.0:
+        p = (sum_pw + body_acc.dot(sum_rho_rw)) / sum_w
+    return p
+
+
+@ti.func
+def adami_wall_velocity(v_wall, sum_vw, sum_w: float):
+    """No-slip ghost velocity: v_hat_w = 2 v_w - sum_f v_f W_wf / sum_f W_wf."""
+    v = v_wall
+    if sum_w > 0.0:
+        v = 2.0 * v_wall - sum_vw / sum_w
+    return v

@@ -1,0 +1,288 @@
+"""The time loop: adaptive dt, stability guards, observers at output times, SIGINT checkpoint.
+
+`Simulation(cfg, out_dir).run()` is the one Python API every command (run, compare, sweep,
+stability, bench) goes through.
+"""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import diagnostics as diag
+from .checks import a_priori_checks
+from .config import Config, to_dict
+from .errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, RenderUnavailable
+from .geometry import FLUID, build_particles, wall_crossings
+from .metrics import make_metrics, probe_value
+from .output import Progress, RunFolder
+from .runtime import current_arch_name, init_taichi
+
+
+def make_solver(cfg: Config, arrays):
+    """Solver registry: name -> class (imported lazily so a scene only loads what it runs)."""
+    if cfg.solver == "wcsph":
+        from .solvers.wcsph import WCSPHSolver
+        return WCSPHSolver(cfg, arrays)
+    from .solvers.isph import ISPHSolver
+    return ISPHSolver(cfg, arrays)
+
+
+@dataclass
+class RunResult:
+    summary: dict
+    exit_code: int
+    out_dir: Path | None
+    final_state: dict = field(default_factory=dict)
+
+
+class Simulation:
+    """One run of one scene with one solver."""
+
+    def __init__(self, cfg: Config, out_dir: Path | None = None, *, render: bool = True, quiet: bool = False,
+                 snapshots: bool = True, log=None) -> None:
+        self.cfg = cfg
+        self.out_dir = Path(out_dir) if out_dir is not None else None
+        self.render_enabled = render and cfg.render.enabled and out_dir is not None
+        self.quiet = quiet
+        self.snapshots = snapshots and out_dir is not None
+        self.log = log or (lambda msg: None if quiet else print(msg, file=sys.stderr))
+        self.warnings: list[str] = []
+        self._interrupted = False
+
+    # -- pieces ---------------------------------------------------------------------------------
+    def _observe(self, solver, state: dict, dt: float, stats: dict) -> dict:
+        cfg = self.cfg
+        f = state["kind"] == FLUID
+        row = {"t": solver.t, "step": solver.step_count, "dt": dt,
+               "kinetic_energy": diag.kinetic_energy(state["v"][f], state["mass"][f]),
+               "max_speed": diag.max_speed(state["v"][f]),
+               "max_density_error": diag.max_density_error(state["rho"][f], cfg.fluid.rho0)}
+        for p in cfg.probes:
+            row[p.name] = probe_value(state, p.position, p.quantity, solver.support, solver.kernel.w_np)
+        for m in self.metrics:
+            row.update(m.observe(solver.t, state))
+        row.update(solver.extra_timeseries())
+        return row
+
+    def _start_renderer(self, solver):
+        try:
+            from .render import FrameRenderer, RenderSettings, vulkan_available
+            if not vulkan_available():
+                raise RenderUnavailable("no Vulkan driver found; frames skipped (install it: apt-get install -y "
+                                        "mesa-vulkan-drivers, or pass --no-render)")
+            r = self.cfg.render
+            settings = RenderSettings(enabled=True, every=r.every, width=r.width, height=r.height, colour_by=r.colour_by,
+                                      range=tuple(r.range) if r.range else None, show_walls=r.show_walls,
+                                      camera_position=r.camera_position, camera_lookat=r.camera_lookat,
+                                      video=r.video, fps=r.fps, particle_scale=r.particle_scale)
+            return FrameRenderer(settings, self.cfg.dim, self.cfg.domain.lo, self.cfg.domain.hi, solver.n,
+                                 self.cfg.particles.dx)
+        except RenderUnavailable as e:
+            msg = f"rendering off: {e}"
+            self.warnings.append(msg)
+            self.log(f"warning: {msg}")
+            return None
+
+    def _render_values(self, state: dict) -> dict:
+        return {"speed": np.linalg.norm(state["v"], axis=1), "pressure": state["p"],
+                "density_error": (state["rho"] - self.cfg.fluid.rho0) / self.cfg.fluid.rho0}
+
+    def _guard(self, solver, stats: dict) -> dict | None:
+        """Stability guards: non-finite values, escaped particles, density error beyond the bound."""
+        g = self.cfg.guards
+        if stats["non_finite"] > 0:
+            return {"criterion": "non_finite", "detail": f"{stats['non_finite']} particles with NaN/inf state"}
+        if solver.nsearch.escaped() > 0:
+            return {"criterion": "left_domain", "detail": f"{solver.nsearch.escaped()} particles outside the domain"}
+        if solver.nsearch.overflowed():
+            return {"criterion": "neighbour_overflow",
+                    "detail": f"a particle has {solver.nsearch.max_count()} neighbours > capacity {solver.max_neighbors} "
+                              "(particles collapsed together)"}
+        if stats["max_density_error"] > g.max_density_error:
+            return {"criterion": "density_error",
+                    "detail": f"|rho - rho0|/rho0 = {stats['max_density_error']:.3g} > {g.max_density_error}"}
+        return None
+
+    def _culprit(self, state: dict, criterion: str) -> int:
+        f = np.where(state["kind"] == FLUID)[0]
+        x, v, rho = state["x"][f], state["v"][f], state["rho"][f]
+        if criterion == "non_finite":
+            bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(v).all(axis=1) & np.isfinite(rho))
+            idx = int(np.argmax(bad))
+        elif criterion == "left_domain":
+            lo, hi = np.asarray(self.cfg.domain.lo), np.asarray(self.cfg.domain.hi)
+            out = ((x < lo) | (x > hi)).any(axis=1)
+            idx = int(np.argmax(out))
+        elif criterion == "density_error":
+            idx = int(np.nanargmax(np.abs(rho - self.cfg.fluid.rho0)))
+        else:
+            idx = int(np.nanargmax(np.linalg.norm(np.nan_to_num(v), axis=1)))
+        return int(state["id"][f][idx])
+
+    # -- the loop -----------------------------------------------------------------------------------
+    def run(self) -> RunResult:
+        cfg = self.cfg
+        checks = a_priori_checks(cfg)
+        for c in checks:
+            self.warnings.append(c.message)
+            self.log(f"warning: {c.message}")
+        init_taichi(cfg.arch, cfg.precision)
+        arrays = build_particles(cfg)
+        t_setup = time.perf_counter()
+        solver = make_solver(cfg, arrays)
+        self.metrics = make_metrics(cfg)
+        folder = None
+        if self.out_dir is not None:
+            folder = RunFolder(self.out_dir).prepare()
+            folder.write_config(to_dict(cfg))
+        self.log(f"{cfg.name}: {solver.name}, dim {cfg.dim}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles, "
+                 f"dx {cfg.particles.dx:g}, h {cfg.h:.4g}, c0 {solver.c0:.4g} m/s, arch {current_arch_name()}")
+        solver.prepare()
+        prepare_s = time.perf_counter() - t_setup
+
+        columns = ["t", "step", "dt", "kinetic_energy", "max_speed", "max_density_error"]
+        columns += [p.name for p in cfg.probes] + [c for m in self.metrics for c in m.columns()]
+        columns += list(solver.extra_timeseries().keys())
+        series = folder.timeseries(columns) if folder else None
+        renderer = self._start_renderer(solver) if self.render_enabled else None
+        render_s = 0.0
+        frames: list[Path] = []
+
+        t_end = cfg.time.t_end
+        next_out = 0.0
+        next_frame = 0.0
+        next_snap = cfg.output.snapshot_every if cfg.output.snapshot_every else None
+        dts: list[float] = []
+        step_times: list[float] = []
+        status, instability = "ok", None
+        last_good: dict | None = None
+        max_rho_err = 0.0
+        progress = Progress(t_end, solver.n, enabled=not self.quiet)
+        old_handler = signal.getsignal(signal.SIGINT)
+
+        def on_sigint(signum, frame):
+            self._interrupted = True
+
+        try:
+            signal.signal(signal.SIGINT, on_sigint)
+        except ValueError:  # not the main thread
+            pass
+        wall0 = time.perf_counter()
+        dt = 0.0
+        stats = solver.read_stats()
+        try:
+            while True:
+                at_output = solver.t >= next_out - 1e-12
+                at_frame = renderer is not None and solver.t >= next_frame - 1e-12
+                at_snap = next_snap is not None and solver.t >= next_snap - 1e-12
+                if at_output or at_frame or at_snap:
+                    state = solver.host_state()
+                    if at_output:
+                        row = self._observe(solver, state, dt, stats)
+                        max_rho_err = max(max_rho_err, row["max_density_error"])
+                        if series:
+                            series.append(row)
+                        next_out += cfg.output.every
+                    if at_frame:
+                        r0 = time.perf_counter()
+                        path = folder.frames_dir / f"frame_{len(frames):05d}.png"
+                        renderer.write(path, state["x"], state["kind"], self._render_values(state), solver.t)
+                        frames.append(path)
+                        render_s += time.perf_counter() - r0
+                        next_frame += cfg.render.every
+                    if at_snap and folder and self.snapshots:
+                        folder.snapshot(solver.step_count, solver.t, self._snapshot_fields(state), cfg.dim)
+                        next_snap += cfg.output.snapshot_every
+                    last_good = state
+                if solver.t >= t_end - 1e-12 or self._interrupted:
+                    break
+                solver.dt_cap = t_end - solver.t
+                s0 = time.perf_counter()
+                dt = solver.step()
+                step_times.append(time.perf_counter() - s0)
+                dts.append(dt)
+                if solver.step_count % cfg.guards.check_every == 0 or solver.t >= t_end - 1e-12:
+                    stats = solver.read_stats()
+                    bad = self._guard(solver, stats)
+                    if bad is not None:
+                        state = solver.host_state()
+                        instability = {**bad, "step": solver.step_count, "t": solver.t,
+                                       "particle": self._culprit(state, bad["criterion"])}
+                        status = "unstable"
+                        self.log(f"unstable at step {solver.step_count}, t = {solver.t:.4g} s: {bad['detail']}")
+                        break
+                progress.update(solver.t, solver.step_count)
+        finally:
+            progress.close()
+            try:
+                signal.signal(signal.SIGINT, old_handler)
+            except ValueError:
+                pass
+        if self._interrupted and status == "ok":
+            status = "interrupted"
+        wall = time.perf_counter() - wall0 - render_s
+        final = solver.host_state() if status != "unstable" else (last_good or solver.host_state())
+
+        # compile time: set-up + first step beyond a typical step
+        typical = float(np.median(step_times[1:])) if len(step_times) > 2 else 0.0
+        compile_s = prepare_s + (step_times[0] - typical if step_times else 0.0)
+        stepping_s = max(sum(step_times[1:]) if len(step_times) > 1 else sum(step_times), 1e-12)
+        nsteps = max(len(step_times) - 1, 1)
+        errors: dict = {}
+        if status == "ok":
+            for m in self.metrics:
+                errors.update(m.finish(final))
+        f = final["kind"] == FLUID
+        crossings = wall_crossings(final["x"], final["kind"], cfg)
+        if status == "ok" and crossings:
+            self.warnings.append(f"{crossings} fluid particles ended outside their wall box")
+        summary = {
+            "scene": cfg.name, "solver": solver.name, "dim": cfg.dim,
+            "n_fluid": solver.particles.n_fluid, "n_wall": solver.particles.n_wall,
+            "status": status, "steps": solver.step_count, "t_end": solver.t,
+            "dt_min": float(min(dts)) if dts else None, "dt_mean": float(np.mean(dts)) if dts else None,
+            "dt_max": float(max(dts)) if dts else None,
+            "wall_time_s": wall, "compile_time_s": compile_s, "render_time_s": render_s,
+            "particle_steps_per_s": solver.n * nsteps / stepping_s,
+            "fluid_particle_steps_per_s": solver.particles.n_fluid * nsteps / stepping_s,
+            "max_density_error": max_rho_err,
+            "errors": errors,
+            "conservation": {
+                "fluid_mass": float(final["mass"][f].sum()),
+                "momentum": diag.total_momentum(final["v"][f], final["mass"][f]).tolist(),
+                "kinetic_energy": diag.kinetic_energy(final["v"][f], final["mass"][f]),
+                "wall_crossings": crossings,
+            },
+            "c0": solver.c0 if solver.name == "wcsph" else None,
+            "features": solver.features.compiled_in(),
+            "arch": current_arch_name(), "precision": cfg.precision,
+            "neighbours_max": solver.nsearch.max_count(), "neighbour_capacity": solver.max_neighbors,
+            "warnings": self.warnings,
+        }
+        summary.update(solver.extra_summary())
+        if instability:
+            summary["instability"] = instability
+        if folder:
+            if self.snapshots:
+                folder.snapshot(solver.step_count, solver.t, self._snapshot_fields(final), cfg.dim)
+            if renderer is not None and frames and cfg.render.video != "none":
+                from .render import assemble_video
+                r0 = time.perf_counter()
+                assemble_video(frames, folder.path / f"video.{cfg.render.video}", cfg.render.fps)
+                summary["render_time_s"] = render_s + time.perf_counter() - r0
+            summary["frames"] = len(frames)
+            if series:
+                series.close()
+            folder.write_summary(summary)
+        code = {"ok": EXIT_OK, "unstable": EXIT_UNSTABLE, "interrupted": EXIT_INTERRUPTED}[status]
+        return RunResult(summary=summary, exit_code=code, out_dir=self.out_dir, final_state=final)
+
+    def _snapshot_fields(self, state: dict) -> dict:
+        fields = {k: state[k] for k in ("x", "v", "rho", "p", "mass", "kind", "id")}
+        return fields

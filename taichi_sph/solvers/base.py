@@ -1,0 +1,207 @@
+"""What every solver shares: particles, kernel, neighbour search, wall extrapolation, reductions, dt."""
+
+
+import math
+
+import numpy as np
+import taichi as ti
+
+from ..config import AUTO, Config
+from ..features import Features
+from ..geometry import FLUID, WALL, ParticleArrays, max_neighbors_for, tait_b
+from ..kernels import make_kernel
+from ..neighbors import NeighborSearch
+from ..particles import ParticleFields
+from ..physics.eos import tait_density, tait_pressure
+from ..physics.walls import adami_wall_pressure, adami_wall_velocity
+
+
+@ti.data_oriented
+class SolverBase:
+    """Common state and passes. Subclasses implement `prepare()` and `step() -> dt`."""
+
+    name = "base"
+
+    def __init__(self, cfg: Config, arrays: ParticleArrays) -> None:
+        self.cfg = cfg
+        self.features = Features.from_config(cfg, arrays.n_wall)
+        f = self.features
+        self.dim = cfg.dim
+        self.kernel = make_kernel(cfg.particles.kernel, cfg.dim, cfg.h)
+        self.h = cfg.h
+        self.dx = cfg.particles.dx
+        self.support = self.kernel.support_radius
+        self.rho0 = cfg.fluid.rho0
+        self.c0 = cfg.sound_speed
+        self.gamma = cfg.fluid.gamma
+        self.B = tait_b(self.rho0, self.c0, self.gamma)
+        self.p_background = cfg.fluid.background_pressure
+        self.nu = cfg.fluid.nu
+        self.eta2 = 0.01 * self.h * self.h
+        self.particles = ParticleFields(arrays, cfg.dim)
+        self.n = self.particles.n
+        self.max_neighbors = max_neighbors_for(cfg, self.support)
+        self.nsearch = NeighborSearch(cfg.dim, self.n, cfg.domain.lo, cfg.domain.hi, self.support,
+                                      f.periodic, self.max_neighbors)
+        self.gravity = ti.Vector.field(cfg.dim, float, shape=())
+        self.gravity[None] = list(cfg.gravity_vector)
+        self.stats = ti.field(float, shape=4)
+        if f.walls:
+            # Adami ghost velocity for no-slip viscous terms; prescribed wall velocity stays in v
+            self.v_ghost = self.particles.add_vector() if f.no_slip else None
+        self.domain_lo = tuple(cfg.domain.lo)
+        self.domain_hi = tuple(cfg.domain.hi)
+        self.restitution = cfg.reflecting.restitution
+        self.t = 0.0
+        self.step_count = 0
+        self.last_dt_limit = ""
+        self.dt_cap = math.inf  # the run loop caps the step so that t lands on t_end
+
+    # -- neighbours ---------------------------------------------------------------------
+    def rebuild_neighbors(self) -> None:
+        """Cell sort, reorder every persistent field, rebuild neighbour lists."""
+        self.nsearch.build(self.particles.x, self.particles.persistent_fields)
+
+    # -- shared passes ---------------------------------------------------------------------
+    @ti.kernel
+    def summation_density(self):
+        """rho_a = m_a W(0) + sum_b m_b W_ab over fluid and wall neighbours (fluid particles only)."""
+        P = self.particles
+        NS = self.nsearch
+        for a in range(self.n):
+            if P.kind[a] == FLUID:
+                xa = P.x[a]
+                rho = P.mass[a] * self.kernel.w0
+                for k in range(NS.count[a]):
+                    b = NS.neighbors[a, k]
+                    r = NS.pair_vector(xa, P.x[b]).norm()
+                    rho += P.mass[b] * self.kernel.w(r)
+                P.rho[a] = rho
+
+    @ti.kernel
+    def tait_equation_of_state(self):
+        """p = B ((rho/rho0)^gamma - 1) + p_b for fluid particles (optionally clamped at 0)."""
+        P = self.particles
+        for a in range(self.n):
+            if P.kind[a] == FLUID:
+                p = tait_pressure(P.rho[a], self.rho0, self.B, self.gamma, self.p_background)
+                if ti.static(self.features.clamp_negative_pressure):
+                    p = ti.max(p, 0.0)
+                P.p[a] = p
+
+    @ti.kernel
+    def adami_wall_extrapolation(self):
+        """Wall pressure (and density, and no-slip ghost velocity) from the fluid around each wall particle."""
+        P = self.particles
+        NS = self.nsearch
+        for a in range(self.n):
+            if P.kind[a] == WALL:
+                xa = P.x[a]
+                sum_w = 0.0
+                sum_pw = 0.0
+                sum_rho_rw = ti.Vector.zero(float, self.dim)
+                sum_vw = ti.Vector.zero(float, self.dim)
+                for k in range(NS.count[a]):
+                    b = NS.neighbors[a, k]
+                    if P.kind[b] == FLUID:
+                        r_ab = NS.pair_vector(xa, P.x[b])
+                        w = self.kernel.w(r_ab.norm())
+                        sum_w += w
+                        sum_pw += P.p[b] * w
+                        sum_rho_rw += P.rho[b] * r_ab * w
+                        if ti.static(self.features.no_slip):
+                            sum_vw += P.v[b] * w
+                body_acc = ti.Vector.zero(float, self.dim)  # (g - a_wall); walls do not accelerate
+                if ti.static(self.features.gravity):
+                    body_acc = self.gravity[None]
+                p = adami_wall_pressure(sum_pw, sum_rho_rw, sum_w, body_acc)
+                if ti.static(self.features.clamp_negative_pressure):
+                    p = ti.max(p, 0.0)
+                if sum_w == 0.0:
+                    p = self.p_background
+                P.p[a] = p
+                P.rho[a] = tait_density(p, self.rho0, self.B, self.gamma, self.p_background)
+                if ti.static(self.features.no_slip):
+                    self.v_ghost[a] = adami_wall_velocity(P.v[a], sum_vw, sum_w)
+
+    @ti.kernel
+    def reduce_stats(self):
+        """stats = [max |v|, max |a|, max |rho - rho0| / rho0, number of non-finite values] over fluid."""
+        P = self.particles
+        for s in range(4):
+            self.stats[s] = 0.0
+        for a in range(self.n):
+            if P.kind[a] == FLUID:
+                speed = P.v[a].norm()
+                accel = P.acc[a].norm()
+                derr = ti.abs(P.rho[a] - self.rho0) / self.rho0
+                bad = 0.0
+                for d in ti.static(range(self.dim)):
+                    if not (ti.abs(P.x[a][d]) < 1e30 and ti.abs(P.v[a][d]) < 1e30):
+                        bad = 1.0
+                if not (ti.abs(P.rho[a]) < 1e30):
+                    bad = 1.0
+                ti.atomic_max(self.stats[0], speed)
+                ti.atomic_max(self.stats[1], accel)
+                ti.atomic_max(self.stats[2], derr)
+                ti.atomic_add(self.stats[3], bad)
+
+    def read_stats(self) -> dict:
+        self.reduce_stats()
+        s = self.stats.to_numpy()
+        return {"max_speed": float(s[0]), "max_acc": float(s[1]), "max_density_error": float(s[2]),
+                "non_finite": int(s[3])}
+
+    @ti.func
+    def reflect(self, a):
+        """Reflect a particle at non-periodic domain faces: mirror position, v_n -> -e v_n."""
+        P = self.particles
+        for d in ti.static(range(self.dim)):
+            if ti.static(not self.features.periodic[d]):
+                lo = ti.static(self.domain_lo[d])
+                hi = ti.static(self.domain_hi[d])
+                if P.x[a][d] < lo:
+                    P.x[a][d] = 2.0 * lo - P.x[a][d]
+                    P.v[a][d] = -self.restitution * P.v[a][d]
+                if P.x[a][d] > hi:
+                    P.x[a][d] = 2.0 * hi - P.x[a][d]
+                    P.v[a][d] = -self.restitution * P.v[a][d]
+
+    # -- time step --------------------------------------------------------------------------
+    def choose_dt(self, max_speed: float, max_acc: float, sound_speed: float) -> float:
+        """dt = min(CFL h / (c + |v|max), CFL sqrt(h / |a|max), 0.125 h^2 / nu, dt_max), or the fixed dt."""
+        tc = self.cfg.time
+        if tc.dt != AUTO:
+            self.last_dt_limit = "fixed"
+            return min(float(tc.dt), self.dt_cap)
+        limits = {}
+        speed = sound_speed + max_speed
+        if speed > 0:
+            limits["cfl"] = tc.cfl * self.h / speed
+        if max_acc > 0:
+            limits["force"] = tc.cfl * math.sqrt(self.h / max_acc)
+        if self.nu > 0:
+            limits["viscous"] = 0.125 * self.h * self.h / self.nu
+        if tc.dt_max is not None:
+            limits["dt_max"] = tc.dt_max
+        if not limits:
+            limits["cfl"] = tc.cfl * self.h / max(self.cfg.expected_speed, 1e-12)
+        self.last_dt_limit = min(limits, key=limits.get)
+        return min(float(limits[self.last_dt_limit]), self.dt_cap)
+
+    # -- interface ----------------------------------------------------------------------------
+    def prepare(self) -> None:
+        raise NotImplementedError
+
+    def step(self) -> float:
+        raise NotImplementedError
+
+    def extra_summary(self) -> dict:
+        """Solver-specific summary entries (ISPH: ppe)."""
+        return {}
+
+    def extra_timeseries(self) -> dict:
+        return {}
+
+    def host_state(self) -> dict[str, np.ndarray]:
+        return self.particles.to_numpy()
