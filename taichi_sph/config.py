@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import re
 import types
 import typing
 from dataclasses import dataclass, field
@@ -185,9 +186,9 @@ class Probe:
 class Metric:
     type: str = opt("hydrostatic", "reference metric written to summary.json errors",
                     choices=("hydrostatic", "surge_front", "taylor_green", "poiseuille", "cavity", "column_fall"))
-    depth: float | None = opt(None, "hydrostatic: fluid depth H", unit="m")
+    depth: float | None = opt(None, "hydrostatic: fluid depth H", unit="m", positive=True)
     floor: float = opt(0.0, "hydrostatic / surge_front: floor height", unit="m")
-    column_width: float | None = opt(None, "surge_front: column width a", unit="m")
+    column_width: float | None = opt(None, "surge_front: column width a", unit="m", positive=True)
     origin: float = opt(0.0, "surge_front: x of the wall the column leans on", unit="m")
     t_max: float = opt(3.0, "surge_front: last dimensionless time T compared")
     lid_velocity: float = opt(1.0, "cavity: lid speed", unit="m/s")
@@ -325,9 +326,13 @@ def _convert(value: Any, tp: Any, key: str, source: str) -> Any:
     if tp is float:
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ConfigError(f"expected a number, got {value!r}", source=source, key=key)
-        if not math.isfinite(value):
+        try:
+            number = float(value)
+        except OverflowError:
+            raise ConfigError(f"number too large, got {value!r}", source=source, key=key) from None
+        if not math.isfinite(number):
             raise ConfigError(f"expected a finite number, got {value!r}", source=source, key=key)
-        return float(value)
+        return number
     if tp is str:
         if not isinstance(value, str):
             raise ConfigError(f"expected a string, got {value!r}", source=source, key=key)
@@ -377,6 +382,16 @@ def _body(value: Any, key: str, source: str) -> Any:
 
 
 # ----------------------------------------------------------------------------- YAML, extends, overrides
+class _YamlLoader(yaml.SafeLoader):
+    """SafeLoader that also reads `1e-3` as a float (YAML 1.1 insists on `1.0e-3`)."""
+
+
+_YamlLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"),
+    list("-+0123456789"))
+
+
 def _read_yaml(path: Path) -> dict:
     try:
         text = path.read_text()
@@ -384,8 +399,10 @@ def _read_yaml(path: Path) -> dict:
         raise ConfigError("file not found; `taichi-sph list` shows the bundled configs", source=str(path)) from None
     except OSError as e:
         raise ConfigError(f"cannot read file ({e.strerror})", source=str(path)) from None
+    except UnicodeDecodeError:
+        raise ConfigError("cannot read file (not UTF-8 text; a config is a YAML text file)", source=str(path)) from None
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_YamlLoader)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
@@ -434,7 +451,7 @@ def parse_override(text: str) -> tuple[list[str], Any]:
     if not key or any(not part for part in key.split(".")):
         raise ConfigError(f"override '{text}' has an empty key", source="--set")
     try:
-        value = yaml.safe_load(raw) if raw.strip() else None
+        value = yaml.load(raw, Loader=_YamlLoader) if raw.strip() else None
     except yaml.YAMLError:
         value = raw
     return key.split("."), value
@@ -527,6 +544,7 @@ def validate(cfg: Config, source: str) -> None:
                 if isinstance(comp, bool) or not isinstance(comp, (int, float, str)):
                     raise ConfigError(f"expected a number or an expression string, got {comp!r}", source=source,
                                       key=f"{key}.velocity[{j}]")
+            _check_velocity_expressions(b, d, key, source)
         if b.type.startswith("fluid"):
             n_fluid_bodies += 1
             lo, hi = _body_bounds(b)
@@ -543,6 +561,10 @@ def validate(cfg: Config, source: str) -> None:
             raise ConfigError("expected 3 values", source=source, key=key)
     for i, p in enumerate(cfg.probes):
         _check_vec(p.position, d, f"probes[{i}].position", source)
+    for i, m in enumerate(cfg.metrics):
+        needed = {"hydrostatic": "depth", "surge_front": "column_width"}.get(m.type)
+        if needed and getattr(m, needed) is None:
+            raise ConfigError(f"a {m.type} metric needs '{needed}'", source=source, key=f"metrics[{i}].{needed}")
     if cfg.fluid.c0 != AUTO and (isinstance(cfg.fluid.c0, str) or cfg.fluid.c0 <= 0):
         raise ConfigError(f"must be > 0 or 'auto', got {cfg.fluid.c0!r}", source=source, key="fluid.c0")
     if cfg.time.dt != AUTO and (isinstance(cfg.time.dt, str) or cfg.time.dt <= 0):
@@ -557,6 +579,25 @@ def validate(cfg: Config, source: str) -> None:
             if length < support:
                 raise ConfigError(f"periodic length {length:g} on axis {a} is shorter than 3 smoothing lengths; "
                                   "use a smaller particles.dx", source=source, key="domain.periodic")
+
+
+def _check_velocity_expressions(b: Body, dim: int, key: str, source: str) -> None:
+    """Refuse unsafe or broken velocity expressions now (not after Taichi starts): evaluate each at one point."""
+    import numpy as np
+
+    from .geometry import evaluate_expression
+    coords = {name: np.zeros(1) for name in "xyz"[:dim]}
+    for j, comp in enumerate(b.velocity):
+        if not isinstance(comp, str):
+            continue
+        try:
+            with np.errstate(all="ignore"):
+                evaluate_expression(comp, coords, "", np.random.default_rng(0))
+        except ConfigError as e:
+            raise ConfigError(str(e), source=source, key=f"{key}.velocity[{j}]") from None
+        except Exception as e:  # noqa: BLE001 (a whitelisted expression failing is the user's to fix)
+            raise ConfigError(f"cannot evaluate expression '{comp}': {type(e).__name__}: {e}", source=source,
+                              key=f"{key}.velocity[{j}]") from None
 
 
 def _body_bounds(b: Body) -> tuple[tuple[float, ...], tuple[float, ...]]:

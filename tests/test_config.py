@@ -1,0 +1,321 @@
+"""Config loading: defaults, `extends:`, typed `--set` overrides, resolved round trip, bundled scenes,
+derived quantities, and the generated reference in docs/config_reference.md.
+
+Bad input through the CLI (messages, exit codes, nothing written) is tests/test_cli.py.
+"""
+
+import dataclasses
+import math
+import typing
+from pathlib import Path
+
+import pytest
+import yaml
+
+from taichi_sph.cli import main
+from taichi_sph.config import (AUTO, Config, Fluid, Particles, Time, apply_overrides, bundled_configs_dir,
+                               config_from_dict, config_reference, load_config, to_dict)
+from taichi_sph.errors import ConfigError
+from taichi_sph.output import RunFolder
+
+REPO = Path(__file__).resolve().parent.parent
+BUNDLED = sorted(bundled_configs_dir().glob("*.yaml"))
+
+MINIMAL = """\
+bodies:
+  - {type: fluid_block, lo: [0.0, 0.0], hi: [0.5, 0.5]}
+"""
+
+
+def write(path: Path, text: str) -> Path:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(text)
+    return path
+
+
+# ----------------------------------------------------------------------------- defaults
+def test_defaults_fill_in(tmp_path):
+    cfg = load_config(write(tmp_path / "tiny_scene.yaml", MINIMAL))
+    assert cfg.name == "tiny_scene"                      # default name: the file's stem
+    assert cfg.dim == 2 and cfg.solver == "wcsph" and cfg.precision == "f32"
+    assert cfg.particles == Particles() and cfg.fluid == Fluid() and cfg.time == Time()
+    assert cfg.particles.dx == 0.02 and cfg.particles.kernel == "wendland_c2"
+    assert cfg.time.dt == AUTO and cfg.fluid.c0 == AUTO
+    body = cfg.bodies[0]
+    assert body.type == "fluid_block" and body.velocity is None and body.layers == 3
+    assert isinstance(body.lo, tuple) and body.lo == (0.0, 0.0)
+    assert cfg.gravity is None and cfg.probes == () and cfg.metrics == ()
+
+
+def test_name_in_file_wins_over_stem(tmp_path):
+    cfg = load_config(write(tmp_path / "a.yaml", "name: my_scene\n" + MINIMAL))
+    assert cfg.name == "my_scene"
+
+
+def test_exponent_floats_without_a_dot_are_numbers(tmp_path):
+    # YAML 1.1 reads `1e-3` as a string; a user writing dx: 1e-3 means a number
+    cfg = load_config(write(tmp_path / "a.yaml", "particles: {dx: 1e-2, hdx: 13E-1}\n" + MINIMAL))
+    assert cfg.particles.dx == pytest.approx(0.01) and cfg.particles.hdx == pytest.approx(1.3)
+    assert isinstance(cfg.particles.dx, float)
+
+
+def test_every_key_is_documented():
+    """Every key has a doc string (the one place keys are documented is the schema)."""
+    def walk(cls, prefix):
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            assert f.metadata.get("doc"), f"{prefix}{f.name} has no doc"
+            tp = hints[f.name]
+            inner = typing.get_args(tp)[0] if typing.get_origin(tp) is tuple else tp
+            if isinstance(inner, type) and dataclasses.is_dataclass(inner):
+                walk(inner, f"{prefix}{f.name}.")
+    walk(Config, "")
+
+
+# ----------------------------------------------------------------------------- extends
+PARENT = """\
+description: parent scene
+dim: 2
+gravity: [0.0, -9.81]
+domain: {lo: [0.0, 0.0], hi: [2.0, 1.0]}
+particles: {dx: 0.05, kernel: cubic_spline}
+fluid: {rho0: 998.0, reference_speed: 3.0}
+bodies:
+  - {type: fluid_block, lo: [0.0, 0.0], hi: [0.5, 0.5]}
+  - {type: wall_box, lo: [0.0, 0.0], hi: [2.0, 1.0]}
+wcsph: {density_diffusion: {model: molteni, delta: 0.1}}
+"""
+
+
+def test_extends_child_wins_and_nested_sections_merge(tmp_path):
+    write(tmp_path / "base" / "parent.yaml", PARENT)
+    child = write(tmp_path / "cases" / "child.yaml", """\
+extends: ../base/parent.yaml
+description: child scene
+particles: {dx: 0.025}
+wcsph: {density_diffusion: {delta: 0.2}}
+bodies:
+  - {type: fluid_block, lo: [0.0, 0.0], hi: [1.0, 0.5]}
+""")
+    cfg = load_config(child)
+    assert cfg.name == "child" and cfg.description == "child scene"
+    assert cfg.particles.dx == 0.025 and cfg.particles.kernel == "cubic_spline"     # nested merge
+    assert cfg.wcsph.density_diffusion.model == "molteni" and cfg.wcsph.density_diffusion.delta == 0.2
+    assert cfg.fluid.rho0 == 998.0 and cfg.gravity == (0.0, -9.81)                   # inherited
+    assert len(cfg.bodies) == 1 and cfg.bodies[0].hi == (1.0, 0.5)                   # lists are replaced
+
+
+def test_extends_is_relative_to_the_file_not_the_cwd(tmp_path, monkeypatch):
+    write(tmp_path / "cfg" / "parent.yaml", PARENT)
+    write(tmp_path / "cfg" / "middle.yaml", "extends: parent.yaml\nparticles: {dx: 0.04}\n")
+    child = write(tmp_path / "cfg" / "deep" / "child.yaml", "extends: ../middle.yaml\nfluid: {rho0: 1010.0}\n")
+    monkeypatch.chdir(tmp_path)
+    cfg = load_config(Path("cfg/deep/child.yaml"))
+    assert cfg.particles.dx == 0.04 and cfg.particles.kernel == "cubic_spline" and cfg.fluid.rho0 == 1010.0
+    assert cfg.fluid.reference_speed == 3.0
+    assert load_config(child) == cfg
+
+
+def test_extends_a_bundled_config(tmp_path):
+    child = write(tmp_path / "coarse.yaml", f"extends: {bundled_configs_dir() / 'dam_break_2d.yaml'}\n"
+                                            "particles: {dx: 0.05}\ntime: {t_end: 0.1}\n")
+    cfg = load_config(child)
+    assert cfg.name == "coarse" and cfg.particles.dx == 0.05 and cfg.time.t_end == 0.1
+    assert cfg.metrics[0].type == "surge_front"
+
+
+def test_extends_missing_parent(tmp_path):
+    child = write(tmp_path / "child.yaml", "extends: nope.yaml\n" + MINIMAL)
+    with pytest.raises(ConfigError) as e:
+        load_config(child)
+    msg = str(e.value)
+    assert "child.yaml" in msg and "key 'extends'" in msg and "'nope.yaml' not found" in msg
+
+
+@pytest.mark.parametrize("files", [
+    {"a.yaml": "extends: a.yaml\n"},
+    {"a.yaml": "extends: b.yaml\n", "b.yaml": "extends: sub/c.yaml\n", "sub/c.yaml": "extends: ../a.yaml\n"},
+], ids=["self", "three-cycle"])
+def test_extends_circular(tmp_path, files):
+    for name, text in files.items():
+        write(tmp_path / name, text + MINIMAL)
+    with pytest.raises(ConfigError, match="circular 'extends'") as e:
+        load_config(tmp_path / "a.yaml")
+    assert "a.yaml" in str(e.value) and e.value.key == "extends"
+
+
+def test_extends_must_be_a_file_name(tmp_path):
+    with pytest.raises(ConfigError, match="key 'extends': expected a file name"):
+        load_config(write(tmp_path / "a.yaml", "extends: [a, b]\n" + MINIMAL))
+
+
+# ----------------------------------------------------------------------------- --set overrides
+@pytest.mark.parametrize("override, get, expected, typ", [
+    ("particles.dx=0.01", lambda c: c.particles.dx, 0.01, float),
+    ("particles.dx=1e-3", lambda c: c.particles.dx, 0.001, float),
+    ("particles.dx=1", lambda c: c.particles.dx, 1.0, float),             # an int where a float is expected
+    ("fluid.c0=50", lambda c: c.fluid.c0, 50.0, float),                   # number-or-auto key
+    ("fluid.c0=auto", lambda c: c.fluid.c0, "auto", str),
+    ("time.dt=auto", lambda c: c.time.dt, "auto", str),
+    ("time.dt=2.5e-4", lambda c: c.time.dt, 2.5e-4, float),
+    ("particles.max_neighbors=64", lambda c: c.particles.max_neighbors, 64, int),
+    ("guards.check_every=5", lambda c: c.guards.check_every, 5, int),
+    ("render.enabled=false", lambda c: c.render.enabled, False, bool),
+    ("reflecting.enabled=true", lambda c: c.reflecting.enabled, True, bool),
+    ("domain.periodic=[true, false]", lambda c: c.domain.periodic, (True, False), tuple),
+    ("gravity=[0, -1.5]", lambda c: c.gravity, (0.0, -1.5), tuple),
+    ("particles.kernel=quintic_spline", lambda c: c.particles.kernel, "quintic_spline", str),
+    ("wcsph.density_diffusion.model=fourtakas", lambda c: c.wcsph.density_diffusion.model, "fourtakas", str),
+    ("shifting.enabled=null", lambda c: c.shifting.enabled, None, type(None)),
+])
+def test_set_overrides_are_typed(tmp_path, override, get, expected, typ):
+    cfg = load_config(write(tmp_path / "a.yaml", MINIMAL), [override])
+    value = get(cfg)
+    assert value == expected and type(value) is typ
+    if typ is tuple:
+        assert all(type(v) is type(e) for v, e in zip(value, expected))
+
+
+def test_set_overrides_apply_in_order_and_on_top_of_extends(tmp_path):
+    write(tmp_path / "parent.yaml", PARENT)
+    child = write(tmp_path / "child.yaml", "extends: parent.yaml\nparticles: {dx: 0.03}\n")
+    cfg = load_config(child, ["particles.dx=0.02", "particles.dx=0.01", "fluid.gamma=1"])
+    assert cfg.particles.dx == 0.01 and cfg.particles.kernel == "cubic_spline" and cfg.fluid.gamma == 1.0
+    assert cfg.fluid.rho0 == 998.0
+
+
+def test_apply_overrides_does_not_mutate_its_input():
+    data = {"particles": {"dx": 0.1}}
+    out = apply_overrides(data, ["particles.dx=0.2", "time.t_end=3"])
+    assert data == {"particles": {"dx": 0.1}}
+    assert out == {"particles": {"dx": 0.2}, "time": {"t_end": 3}}
+
+
+@pytest.mark.parametrize("override, fragments", [
+    ("particles.dx", ["must look like KEY=VALUE"]),
+    ("=3", ["empty key"]),
+    ("particles..dx=3", ["empty key"]),
+    ("particles.spacing=0.1", ["unknown key 'particles.spacing'", "allowed at particles: dx, hdx, kernel, max_neighbors"]),
+    ("viscosity=0.1", ["unknown key 'viscosity'", "allowed at top level:", "particles"]),
+    ("dim.x=1", ["'dim' is not a section"]),
+])
+def test_set_override_errors(tmp_path, override, fragments):
+    with pytest.raises(ConfigError) as e:
+        load_config(write(tmp_path / "a.yaml", MINIMAL), [override])
+    msg = str(e.value)
+    assert msg.startswith("--set")
+    for frag in fragments:
+        assert frag in msg
+
+
+def test_set_override_value_is_validated_like_the_file(tmp_path):
+    with pytest.raises(ConfigError, match=r"a\.yaml: key 'particles\.dx': must be > 0"):
+        load_config(write(tmp_path / "a.yaml", MINIMAL), ["particles.dx=-0.01"])
+
+
+# ----------------------------------------------------------------------------- resolved round trip
+ROUND_TRIP_EXTRA = """\
+dim: 2
+gravity: [0.0, -9.81]
+domain: {lo: [0.0, 0.0], hi: [1.0, 1.0], periodic: [true, false]}
+particles: {dx: 0.05, max_neighbors: 48}
+fluid: {c0: 25.0}
+time: {dt: 1.0e-4}
+bodies:
+  - {type: fluid_block, lo: [0.0, 0.0], hi: [1.0, 0.5], velocity: ["sin(2 * pi * y)", 0.25]}
+  - {type: fluid_sphere, center: [0.5, 0.75], radius: 0.1}
+render: {range: [0.0, 2.0]}
+probes:
+  - {name: p_mid, quantity: pressure, position: [0.5, 0.25]}
+metrics:
+  - {type: hydrostatic, depth: 0.5}
+"""
+
+
+@pytest.mark.parametrize("path", BUNDLED + ["extra"], ids=lambda p: getattr(p, "stem", p))
+def test_resolved_config_round_trips(tmp_path, path):
+    if path == "extra":
+        path = write(tmp_path / "extra.yaml", ROUND_TRIP_EXTRA)
+    cfg = load_config(path, ["time.t_end=0.5"])
+    data = to_dict(cfg)
+    back = config_from_dict(yaml.safe_load(yaml.safe_dump(data, sort_keys=False)))
+    assert back == cfg
+    # the same through the run folder's config.yaml, re-loaded as a user would
+    written = RunFolder(tmp_path / "run").prepare().write_config(data)
+    assert load_config(written) == cfg
+
+
+# ----------------------------------------------------------------------------- bundled scenes
+def test_the_required_scenes_are_bundled():
+    assert {"hydrostatic_2d", "dam_break_2d", "dam_break_3d", "column_1d"} <= {p.stem for p in BUNDLED}
+
+
+@pytest.mark.parametrize("path", BUNDLED, ids=lambda p: p.stem)
+def test_bundled_config_loads_and_checks(path, capsys):
+    cfg = load_config(path)
+    assert cfg.name == path.stem and cfg.description
+    assert main(["check", str(path)]) == 0
+    out, err = capsys.readouterr()
+    assert f"{path}: valid ({cfg.solver}, dim {cfg.dim}" in out
+    assert "error" not in err
+
+
+# ----------------------------------------------------------------------------- derived values
+def test_derived_h_and_sound_speed(tmp_path):
+    cfg = load_config(write(tmp_path / "a.yaml", "particles: {dx: 0.04, hdx: 1.5}\n"
+                                                 "fluid: {reference_speed: 4.0, c0_factor: 12.5}\n" + MINIMAL))
+    assert cfg.h == pytest.approx(0.06)
+    assert cfg.sound_speed == pytest.approx(50.0) and cfg.expected_speed == 4.0
+
+
+def test_sound_speed_given_wins_over_auto(tmp_path):
+    cfg = load_config(write(tmp_path / "a.yaml", "fluid: {c0: 33, reference_speed: 4.0}\n" + MINIMAL))
+    assert cfg.sound_speed == 33.0
+
+
+def test_reference_speed_defaults_from_gravity_and_domain_height(tmp_path):
+    cfg = load_config(write(tmp_path / "a.yaml", "gravity: [0.0, -9.81]\ndomain: {lo: [0.0, -0.5], hi: [1.0, 1.5]}\n"
+                                                 + MINIMAL))
+    assert cfg.expected_speed == pytest.approx(math.sqrt(2 * 9.81 * 2.0))
+    assert cfg.sound_speed == pytest.approx(10 * math.sqrt(2 * 9.81 * 2.0))
+    no_g = load_config(write(tmp_path / "b.yaml", MINIMAL))
+    assert no_g.expected_speed == 1.0 and no_g.sound_speed == 10.0
+
+
+def test_bundled_dam_break_sound_speed_is_ten_times_the_reference_speed():
+    cfg = load_config(bundled_configs_dir() / "dam_break_2d.yaml")
+    assert cfg.sound_speed == pytest.approx(10 * cfg.fluid.reference_speed)
+
+
+def test_periodic_gravity_and_shifting_defaults(tmp_path):
+    cfg = load_config(write(tmp_path / "a.yaml", MINIMAL))
+    assert cfg.periodic == (False, False)
+    assert cfg.gravity_vector == (0.0, 0.0) and not cfg.has_gravity
+    assert cfg.shifting_enabled is False
+    assert load_config(tmp_path / "a.yaml", ["solver=isph"]).shifting_enabled is True
+    assert load_config(tmp_path / "a.yaml", ["solver=isph", "shifting.enabled=false"]).shifting_enabled is False
+    cfg3 = load_config(write(tmp_path / "c.yaml", "dim: 3\ndomain: {lo: [0, 0, 0], hi: [1, 1, 1], periodic: [true, false, true]}\n"
+                                                  "gravity: [0, 0, 0]\nbodies:\n"
+                                                  "  - {type: fluid_block, lo: [0, 0, 0], hi: [1, 0.5, 1]}\n"))
+    assert cfg3.periodic == (True, False, True) and not cfg3.has_gravity
+    assert load_config(tmp_path / "a.yaml", ["gravity=[0, -9.81]"]).has_gravity
+
+
+# ----------------------------------------------------------------------------- generated reference
+DOC = REPO / "docs" / "config_reference.md"
+TABLE_START = "| key | default | unit | meaning |"
+
+
+def test_config_reference_lists_every_leaf_key():
+    ref = config_reference()
+    for key in ("particles.dx", "fluid.c0", "wcsph.density_diffusion.model", "isph.ppe.tolerance",
+                "bodies[].velocity", "probes[].position", "metrics[].type", "time.t_end"):
+        assert f"| `{key}` |" in ref
+    assert "`wendland_c2`" in ref and "m/s" in ref
+
+
+def test_docs_config_reference_is_current():
+    """docs/config_reference.md is `taichi-sph config-doc` under a short header; regenerate it when this fails."""
+    text = DOC.read_text()
+    assert "generated" in text[:text.index(TABLE_START)].lower()
+    assert text[text.index(TABLE_START):] == config_reference() + "\n"
