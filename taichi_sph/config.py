@@ -205,6 +205,8 @@ class Config:
     arch: str = opt("cpu", "Taichi backend", choices=("cpu", "cuda", "vulkan", "gpu", "auto"))
     seed: int = opt(0, "random seed (initial jitter, random velocity expressions)")
     gravity: tuple[float, ...] | None = opt(None, "body acceleration (dim numbers); None or zeros compiles it out", unit="m/s^2")
+    gravity_ramp: float = opt(0.0, "time over which gravity rises smoothly from 0 to its value, "
+                                   "g (1 - cos(pi t / t_ramp)) / 2 (Adami et al. 2012 damping); 0 = off", unit="s", minimum=0.0)
     domain: Domain = opt(factory=Domain, doc="simulation box")
     particles: Particles = opt(factory=Particles, doc="discretisation")
     fluid: Fluid = opt(factory=Fluid, doc="material")

@@ -174,9 +174,9 @@ def build_particles(cfg: Config) -> ParticleArrays:
     x, v, kind, p = x[order], v[order], kind[order], p[order]
     x, v, kind, p = _remove_overlaps(x, v, kind, p, dx)
     rho = cfg.fluid.rho0 * (1.0 + p / B) ** (1.0 / cfg.fluid.gamma) if cfg.solver == "wcsph" else np.full(len(p), cfg.fluid.rho0)
-    # one mass for every particle: sum_b m_b grad W_ab vanishes on the lattice, so the pressure term
-    # p_a / rho_a^2 sum_b m_b grad W_ab adds no spurious force where fluid meets wall
-    mass = np.full(len(p), cfg.fluid.rho0 * dx ** cfg.dim)
+    # every particle starts with the lattice volume dx^dim, so m = rho dx^dim (wall masses follow their
+    # extrapolated density during the run: see SolverBase.adami_wall_extrapolation)
+    mass = rho * dx ** cfg.dim
     return ParticleArrays(x=x, v=v, rho=rho, p=p, mass=mass, kind=kind)
 
 

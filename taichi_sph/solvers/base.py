@@ -38,6 +38,7 @@ class SolverBase:
         self.p_background = cfg.fluid.background_pressure
         self.nu = cfg.fluid.nu
         self.eta2 = 0.01 * self.h * self.h
+        self.lattice_volume = self.dx ** cfg.dim
         self.particles = ParticleFields(arrays, cfg.dim)
         self.n = self.particles.n
         self.max_neighbors = max_neighbors_for(cfg, self.support)
@@ -45,6 +46,8 @@ class SolverBase:
                                       f.periodic, self.max_neighbors)
         self.gravity = ti.Vector.field(cfg.dim, float, shape=())
         self.gravity[None] = list(cfg.gravity_vector)
+        if cfg.gravity_ramp > 0.0:
+            self.gravity[None] = [0.0] * cfg.dim
         self.stats = ti.field(float, shape=4)
         if f.walls:
             # Adami ghost velocity for no-slip viscous terms; prescribed wall velocity stays in v
@@ -114,13 +117,15 @@ class SolverBase:
                 body_acc = ti.Vector.zero(float, self.dim)  # (g - a_wall); walls do not accelerate
                 if ti.static(self.features.gravity):
                     body_acc = self.gravity[None]
-                p = adami_wall_pressure(sum_pw, sum_rho_rw, sum_w, body_acc)
-                if ti.static(self.features.clamp_negative_pressure):
-                    p = ti.max(p, 0.0)
+                # walls push, never pull: a negative extrapolated pressure (wall above a free surface)
+                # would glue fluid to the wall
+                p = ti.max(adami_wall_pressure(sum_pw, sum_rho_rw, sum_w, body_acc), 0.0)
                 if sum_w == 0.0:
                     p = self.p_background
                 P.p[a] = p
-                P.rho[a] = tait_density(p, self.rho0, self.B, self.gamma, self.p_background)
+                rho_w = tait_density(p, self.rho0, self.B, self.gamma, self.p_background)
+                P.rho[a] = rho_w
+                P.mass[a] = rho_w * self.lattice_volume  # a wall particle stands for dx^dim of ghost fluid
                 if ti.static(self.features.no_slip):
                     self.v_ghost[a] = adami_wall_velocity(P.v[a], sum_vw, sum_w)
 
@@ -166,6 +171,13 @@ class SolverBase:
                 if P.x[a][d] > hi:
                     P.x[a][d] = 2.0 * hi - P.x[a][d]
                     P.v[a][d] = -self.restitution * P.v[a][d]
+
+    def update_body_force(self) -> None:
+        """Gravity ramp: g(t) = g (1 - cos(pi t / t_ramp)) / 2 for t < t_ramp."""
+        ramp = self.cfg.gravity_ramp
+        if ramp > 0.0 and self.features.gravity:
+            factor = 0.5 * (1.0 - math.cos(math.pi * min(self.t / ramp, 1.0)))
+            self.gravity[None] = [factor * g for g in self.cfg.gravity_vector]
 
     # -- time step --------------------------------------------------------------------------
     def choose_dt(self, max_speed: float, max_acc: float, sound_speed: float) -> float:

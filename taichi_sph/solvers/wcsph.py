@@ -26,9 +26,9 @@ class WCSPHSolver(SolverBase):
         super().__init__(cfg, arrays)
         f = self.features
         P = self.particles
-        self.drho = P.add_scalar(persistent=f.integrator == "leapfrog")
-        if f.integrator == "leapfrog":
-            P.make_persistent(P.acc)
+        # both are computed after the last neighbour rebuild and used before the next: not permuted
+        self.drho = P.add_scalar()
+        self.drho_diffusion = P.add_scalar() if f.density_diffusion != "none" else self.drho
         av = cfg.wcsph.artificial_viscosity
         self.alpha, self.beta = av.alpha, av.beta
         self.delta_h_c0 = cfg.wcsph.density_diffusion.delta * self.h * self.c0
@@ -40,7 +40,7 @@ class WCSPHSolver(SolverBase):
     # -- the pair loop ------------------------------------------------------------------
     @ti.kernel
     def wcsph_forces(self):
-        """acc_a and drho_a from every neighbour: pressure, viscosities, body force, continuity, delta-SPH."""
+        """acc_a from every neighbour (pressure, viscosities, body force) and the delta-SPH density diffusion."""
         P = self.particles
         NS = self.nsearch
         for a in range(self.n):
@@ -61,8 +61,6 @@ class WCSPHSolver(SolverBase):
                     if ti.static(self.features.tensile_correction):
                         acc += monaghan_tensile_correction(m_b, p_a, rho_a, P.p[b], rho_b, self.kernel.w(r), self.w_dx,
                                                            self.tc_epsilon, self.tc_n, grad_w)
-                    if ti.static(self.features.density == "continuity"):
-                        drho += continuity_rate(m_b, v_ab, grad_w)
                     if ti.static(self.features.density_diffusion != "none"):
                         if is_fluid_b:
                             drho_ab = rho_b - rho_a
@@ -85,48 +83,48 @@ class WCSPHSolver(SolverBase):
                 if ti.static(self.features.gravity):
                     acc += self.gravity[None]
                 P.acc[a] = acc
+                if ti.static(self.features.density_diffusion != "none"):
+                    self.drho_diffusion[a] = drho
+
+    @ti.kernel
+    def continuity_pass(self):
+        """drho_a = sum_b m_b (v_a - v_b) . grad_a W_ab with the velocities just kicked, so that density
+        (a position-like variable) drifts with the new velocity: the scheme stays symplectic for sound waves."""
+        P = self.particles
+        NS = self.nsearch
+        for a in range(self.n):
+            if P.kind[a] == FLUID:
+                xa, va = P.x[a], P.v[a]
+                drho = 0.0
+                for k in range(NS.count[a]):
+                    b = NS.neighbors[a, k]
+                    r_ab = NS.pair_vector(xa, P.x[b])
+                    drho += continuity_rate(P.mass[b], va - P.v[b], self.kernel.grad_w(r_ab, r_ab.norm()))
                 self.drho[a] = drho
 
-    # -- integrators ------------------------------------------------------------------------
     @ti.kernel
-    def symplectic_euler(self, dt: float):
-        """v += dt a; x += dt v; rho += dt drho (continuity)."""
+    def kick(self, dt: float):
+        """v += dt a (fluid)."""
         P = self.particles
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 P.v[a] += dt * P.acc[a]
-                P.x[a] += dt * P.v[a]
-                if ti.static(self.features.density == "continuity"):
-                    P.rho[a] += dt * self.drho[a]
-                if ti.static(self.features.reflecting):
-                    self.reflect(a)
 
     @ti.kernel
-    def leapfrog_kick_drift(self, dt: float):
-        """Half kick with the old acceleration, then a full drift: v += dt/2 a; rho += dt/2 drho; x += dt v."""
+    def drift(self, dt: float):
+        """x += dt v; rho += dt (drho + delta-SPH diffusion) for continuity density; reflect at faces."""
         P = self.particles
         for a in range(self.n):
             if P.kind[a] == FLUID:
-                P.v[a] += 0.5 * dt * P.acc[a]
-                if ti.static(self.features.density == "continuity"):
-                    P.rho[a] += 0.5 * dt * self.drho[a]
                 P.x[a] += dt * P.v[a]
+                if ti.static(self.features.density == "continuity"):
+                    P.rho[a] += dt * (self.drho[a] + self.drho_diffusion[a])
                 if ti.static(self.features.reflecting):
                     self.reflect(a)
-
-    @ti.kernel
-    def leapfrog_kick(self, dt: float):
-        """Closing half kick with the new acceleration."""
-        P = self.particles
-        for a in range(self.n):
-            if P.kind[a] == FLUID:
-                P.v[a] += 0.5 * dt * P.acc[a]
-                if ti.static(self.features.density == "continuity"):
-                    P.rho[a] += 0.5 * dt * self.drho[a]
 
     # -- one step ---------------------------------------------------------------------------
-    def evaluate_rates(self) -> None:
-        """Neighbours, density, pressure, walls and forces at the current positions."""
+    def evaluate_forces(self) -> None:
+        """Neighbours, density, pressure, walls and accelerations at the current positions."""
         self.rebuild_neighbors()
         if self.features.density == "summation":
             self.summation_density()
@@ -135,30 +133,38 @@ class WCSPHSolver(SolverBase):
             self.adami_wall_extrapolation()
         self.wcsph_forces()
 
+    def _advance_density_and_positions(self, dt: float) -> None:
+        if self.features.density == "continuity":
+            self.continuity_pass()
+        self.drift(dt)
+
     def prepare(self) -> None:
-        self.evaluate_rates()
+        self.evaluate_forces()
         self.stats_now = self.read_stats()
 
     def step(self) -> float:
-        """Advance one step; returns the dt used."""
+        """Advance one step; returns the dt used.
+
+        symplectic_euler: v^{n+1} = v^n + dt a^n; rho^{n+1} = rho^n + dt drho(v^{n+1}); x^{n+1} = x^n + dt v^{n+1}.
+        leapfrog (kick-drift-kick): half kick with a^n, drift x and rho with v^{n+1/2}, forces at n+1, half kick.
+        """
+        self.update_body_force()
+        if self.step_count > 0 and self.features.integrator == "symplectic_euler":
+            self.evaluate_forces()
+            self.stats_now = self.read_stats()
+        s = self.stats_now
+        dt = self.choose_dt(s["max_speed"], s["max_acc"], self.c0)
         if self.features.integrator == "leapfrog":
-            s = self.stats_now
-            dt = self.choose_dt(s["max_speed"], s["max_acc"], self.c0)
-            self.leapfrog_kick_drift(dt)
-            self.evaluate_rates()
-            self.leapfrog_kick(dt)
+            self.kick(0.5 * dt)
+            self._advance_density_and_positions(dt)
+            self.evaluate_forces()
+            self.kick(0.5 * dt)
+            self.stats_now = self.read_stats()
         else:
-            if self.step_count > 0:
-                self.evaluate_rates()
-                s = self.read_stats()
-            else:
-                s = self.stats_now
-            dt = self.choose_dt(s["max_speed"], s["max_acc"], self.c0)
-            self.symplectic_euler(dt)
+            self.kick(dt)
+            self._advance_density_and_positions(dt)
         if self.shifting is not None:
             self.shifting.apply(dt)
-        if self.features.integrator == "leapfrog":
-            self.stats_now = self.read_stats()
         self.t += dt
         self.step_count += 1
         return dt
