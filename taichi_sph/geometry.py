@@ -97,7 +97,7 @@ def evaluate_expression(expr: str, coords: dict[str, np.ndarray], key: str = "ex
         raise ConfigError(f"cannot parse expression '{expr}'", key=key) from None
     names = dict(_SAFE_FUNCS)
     names.update(_SAFE_CONSTS)
-    names.update(coords)
+    names.update({k: np.array(v, dtype=np.float64, copy=True) for k, v in coords.items()})  # no writes back
     if rng is not None:
         n = len(next(iter(coords.values())))
         names["random"] = lambda: rng.uniform(-1.0, 1.0, size=n)
@@ -110,6 +110,13 @@ def evaluate_expression(expr: str, coords: dict[str, np.ndarray], key: str = "ex
                               f"{', '.join(sorted(set(names) - {'random'}))}, random()", key=key)
         if isinstance(node, ast.Call) and not isinstance(node.func, ast.Name):
             raise ConfigError(f"expression '{expr}' may only call plain function names", key=key)
+        if isinstance(node, ast.Call) and (node.keywords or len(node.args) > 3):
+            raise ConfigError(f"expression '{expr}': functions take at most 3 positional arguments", key=key)
+        if isinstance(node, ast.BinOp) and isinstance(node.op, ast.Pow):
+            exponent = node.right.operand if isinstance(node.right, ast.UnaryOp) else node.right
+            if not (isinstance(exponent, ast.Constant) and isinstance(exponent.value, (int, float))
+                    and abs(exponent.value) <= 16):
+                raise ConfigError(f"expression '{expr}': exponents must be numbers up to 16", key=key)
     value = eval(compile(tree, "<expression>", "eval"), {"__builtins__": {}}, names)  # noqa: S307 (whitelisted AST)
     n = len(next(iter(coords.values())))
     return np.broadcast_to(np.asarray(value, dtype=np.float64), (n,)).copy()
