@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 
 import taichi as ti
@@ -35,14 +37,14 @@ def init_taichi(arch: str = "cpu", precision: str = "f32", *, force: bool = Fals
     if _current == key and not force:
         return
     fp = ti.f64 if precision == "f64" else ti.f32
-    os.environ.setdefault("TI_LOG_LEVEL", "warn")
     kwargs = dict(default_fp=fp, default_ip=ti.i32, offline_cache=True, debug=debug, log_level=ti.WARN)
-    if arch == "cpu":
-        ti.init(arch=ti.cpu, **kwargs)
-    elif arch in ("auto", "gpu"):
-        ti.init(arch=ti.gpu, **kwargs)  # Taichi falls back to CPU itself when no GPU is found
-    else:
-        ti.init(arch=_ARCHES[arch](), **kwargs)
+    with contextlib.redirect_stdout(io.StringIO()):  # "[Taichi] Starting on arch=..." banner
+        if arch == "cpu":
+            ti.init(arch=ti.cpu, **kwargs)
+        elif arch in ("auto", "gpu"):
+            ti.init(arch=ti.gpu, **kwargs)  # Taichi falls back to CPU itself when no GPU is found
+        else:
+            ti.init(arch=_ARCHES[arch](), **kwargs)
         if ti.lang.impl.current_cfg().arch != _ARCHES[arch]():
             raise SPHError(
                 f"arch '{arch}' is not available on this machine (Taichi fell back to "

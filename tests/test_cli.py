@@ -121,7 +121,7 @@ BAD_CONFIGS = {
                            ["key 'bodies[0].velocity[1]'", "'Attribute', which is not allowed", "sin"]),
     "velocity_unknown_name": (mutate(("bodies", 0, "velocity"), ["open", 0.0]),
                               ["key 'bodies[0].velocity[0]'", "unknown name 'open'", "allowed:", "sin", "x, y"]),
-    "velocity_fails_to_evaluate": (mutate(("bodies", 0, "velocity"), ["sin(x, y, x, y)", 0.0]),
+    "velocity_fails_to_evaluate": (mutate(("bodies", 0, "velocity"), ["arctan2(x)", 0.0]),
                                    ["key 'bodies[0].velocity[0]'", "cannot evaluate expression"]),
     "metric_without_depth": (mutate(("metrics",), [{"type": "hydrostatic"}]),
                              ["key 'metrics[0].depth'", "needs 'depth'"]),

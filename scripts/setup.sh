@@ -1,0 +1,30 @@
+#!/usr/bin/env bash
+# One-time set-up on a fresh Debian/Ubuntu machine (idempotent; safe to re-run):
+#  - system packages when missing: software Vulkan (mesa-vulkan-drivers) for the offscreen renderer,
+#    python3-venv for the virtual environment
+#  - a virtual environment in .venv with taichi-sph and its dependencies installed (editable)
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+need=()
+if ! ls /usr/share/vulkan/icd.d/*.json /etc/vulkan/icd.d/*.json >/dev/null 2>&1; then
+  need+=(mesa-vulkan-drivers libvulkan1)
+fi
+if ! ldconfig -p 2>/dev/null | grep -q "libX11.so.6"; then need+=(libx11-6); fi
+if ! python3 -c "import ensurepip, venv" >/dev/null 2>&1; then need+=(python3-venv); fi
+if [ ${#need[@]} -gt 0 ]; then
+  if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then
+    echo "setup: installing ${need[*]}" >&2
+    apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq "${need[@]}" >/dev/null
+  else
+    echo "setup: missing ${need[*]}; install them with: sudo apt-get install -y ${need[*]}" >&2
+  fi
+fi
+
+if [ ! -x .venv/bin/python ]; then
+  python3 -m venv .venv
+fi
+.venv/bin/python -m pip install -q --upgrade pip >/dev/null
+.venv/bin/python -m pip install -q -e . 
+echo "setup: ready (.venv/bin/taichi-sph)" >&2
