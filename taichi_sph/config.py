@@ -547,6 +547,14 @@ def validate(cfg: Config, source: str) -> None:
                     raise ConfigError(f"expected a number or an expression string, got {comp!r}", source=source,
                                       key=f"{key}.velocity[{j}]")
             _check_velocity_expressions(b, d, key, source)
+        if b.type == "wall_box":
+            thick = b.layers * cfg.particles.dx
+            outer_lo = [b.lo[a] - thick for a in range(d)]
+            outer_hi = [b.hi[a] + (0.0 if (b.open_top and a == d - 1) else thick) for a in range(d)]
+            if any(outer_lo[a] < cfg.domain.lo[a] - eps or outer_hi[a] > cfg.domain.hi[a] + eps for a in range(d)):
+                raise ConfigError(f"wall_box with its {b.layers} layers spans [{_fmt(outer_lo)}]..[{_fmt(outer_hi)}], "
+                                  f"outside the domain [{_fmt(cfg.domain.lo)}]..[{_fmt(cfg.domain.hi)}]; enlarge the domain",
+                                  source=source, key=key)
         if b.type.startswith("fluid"):
             n_fluid_bodies += 1
             lo, hi = _body_bounds(b)

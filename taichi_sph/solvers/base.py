@@ -68,6 +68,24 @@ class SolverBase:
     # -- shared passes ---------------------------------------------------------------------
     @ti.kernel
     def summation_density(self):
+        self.summation_density_pass()
+
+    @ti.kernel
+    def tait_equation_of_state(self):
+        self.tait_pass()
+
+    @ti.kernel
+    def adami_wall_extrapolation(self):
+        self.adami_wall_pass()
+
+    @ti.kernel
+    def reduce_stats(self):
+        self.stats_pass()
+
+    # Passes are @ti.func with one top-level loop each; a kernel that calls several in a row runs them
+    # one after the other, each in parallel (one launch instead of several).
+    @ti.func
+    def summation_density_pass(self):
         """rho_a = m_a W(0) + sum_b m_b W_ab over fluid and wall neighbours (fluid particles only)."""
         P = self.particles
         NS = self.nsearch
@@ -81,8 +99,8 @@ class SolverBase:
                     rho += P.mass[b] * self.kernel.w(r)
                 P.rho[a] = rho
 
-    @ti.kernel
-    def tait_equation_of_state(self):
+    @ti.func
+    def tait_pass(self):
         """p = B ((rho/rho0)^gamma - 1) + p_b for fluid particles (optionally clamped at 0)."""
         P = self.particles
         for a in range(self.n):
@@ -92,8 +110,8 @@ class SolverBase:
                     p = ti.max(p, 0.0)
                 P.p[a] = p
 
-    @ti.kernel
-    def adami_wall_extrapolation(self):
+    @ti.func
+    def adami_wall_pass(self):
         """Wall pressure (and density, and no-slip ghost velocity) from the fluid around each wall particle."""
         P = self.particles
         NS = self.nsearch
@@ -129,8 +147,8 @@ class SolverBase:
                 if ti.static(self.features.no_slip):
                     self.v_ghost[a] = adami_wall_velocity(P.v[a], sum_vw, sum_w)
 
-    @ti.kernel
-    def reduce_stats(self):
+    @ti.func
+    def stats_pass(self):
         """stats = [max |v|, max |a|, max |rho - rho0| / rho0, number of non-finite values] over fluid."""
         P = self.particles
         for s in range(4):
@@ -151,8 +169,10 @@ class SolverBase:
                 ti.atomic_max(self.stats[2], derr)
                 ti.atomic_add(self.stats[3], bad)
 
-    def read_stats(self) -> dict:
-        self.reduce_stats()
+    def read_stats(self, reduce: bool = True) -> dict:
+        """Host copy of the stats (reduced now unless a fused kernel just did it)."""
+        if reduce:
+            self.reduce_stats()
         s = self.stats.to_numpy()
         return {"max_speed": float(s[0]), "max_acc": float(s[1]), "max_density_error": float(s[2]),
                 "non_finite": int(s[3])}

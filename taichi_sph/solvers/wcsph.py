@@ -39,7 +39,18 @@ class WCSPHSolver(SolverBase):
 
     # -- the pair loop ------------------------------------------------------------------
     @ti.kernel
-    def wcsph_forces(self):
+    def wcsph_rates(self):
+        """One launch: (summation density), Tait EOS, Adami walls, forces + delta-SPH, stats."""
+        if ti.static(self.features.density == "summation"):
+            self.summation_density_pass()
+        self.tait_pass()
+        if ti.static(self.features.walls):
+            self.adami_wall_pass()
+        self.wcsph_forces_pass()
+        self.stats_pass()
+
+    @ti.func
+    def wcsph_forces_pass(self):
         """acc_a from every neighbour (pressure, viscosities, body force) and the delta-SPH density diffusion."""
         P = self.particles
         NS = self.nsearch
@@ -86,7 +97,7 @@ class WCSPHSolver(SolverBase):
                 if ti.static(self.features.density_diffusion != "none"):
                     self.drho_diffusion[a] = drho
 
-    @ti.kernel
+    @ti.func
     def continuity_pass(self):
         """drho_a = sum_b m_b (v_a - v_b) . grad_a W_ab with the velocities just kicked, so that density
         (a position-like variable) drifts with the new velocity: the scheme stays symplectic for sound waves."""
@@ -104,14 +115,26 @@ class WCSPHSolver(SolverBase):
 
     @ti.kernel
     def kick(self, dt: float):
+        self.kick_pass(dt)
+
+    @ti.kernel
+    def kick_continuity_drift(self, dt_kick: float, dt: float):
+        """One launch: v += dt_kick a; drho with the kicked v (continuity); x, rho += dt (...)."""
+        self.kick_pass(dt_kick)
+        if ti.static(self.features.density == "continuity"):
+            self.continuity_pass()
+        self.drift_pass(dt)
+
+    @ti.func
+    def kick_pass(self, dt: float):
         """v += dt a (fluid)."""
         P = self.particles
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 P.v[a] += dt * P.acc[a]
 
-    @ti.kernel
-    def drift(self, dt: float):
+    @ti.func
+    def drift_pass(self, dt: float):
         """x += dt v; rho += dt (drho + delta-SPH diffusion) for continuity density; reflect at faces."""
         P = self.particles
         for a in range(self.n):
@@ -124,23 +147,13 @@ class WCSPHSolver(SolverBase):
 
     # -- one step ---------------------------------------------------------------------------
     def evaluate_forces(self) -> None:
-        """Neighbours, density, pressure, walls and accelerations at the current positions."""
+        """Neighbours, then density, pressure, walls, accelerations and stats in one launch."""
         self.rebuild_neighbors()
-        if self.features.density == "summation":
-            self.summation_density()
-        self.tait_equation_of_state()
-        if self.features.walls:
-            self.adami_wall_extrapolation()
-        self.wcsph_forces()
-
-    def _advance_density_and_positions(self, dt: float) -> None:
-        if self.features.density == "continuity":
-            self.continuity_pass()
-        self.drift(dt)
+        self.wcsph_rates()
+        self.stats_now = self.read_stats(reduce=False)
 
     def prepare(self) -> None:
         self.evaluate_forces()
-        self.stats_now = self.read_stats()
 
     def step(self) -> float:
         """Advance one step; returns the dt used.
@@ -151,18 +164,14 @@ class WCSPHSolver(SolverBase):
         self.update_body_force()
         if self.step_count > 0 and self.features.integrator == "symplectic_euler":
             self.evaluate_forces()
-            self.stats_now = self.read_stats()
         s = self.stats_now
         dt = self.choose_dt(s["max_speed"], s["max_acc"], self.c0)
         if self.features.integrator == "leapfrog":
-            self.kick(0.5 * dt)
-            self._advance_density_and_positions(dt)
+            self.kick_continuity_drift(0.5 * dt, dt)
             self.evaluate_forces()
             self.kick(0.5 * dt)
-            self.stats_now = self.read_stats()
         else:
-            self.kick(dt)
-            self._advance_density_and_positions(dt)
+            self.kick_continuity_drift(dt, dt)
         if self.shifting is not None:
             self.shifting.apply(dt)
         self.t += dt

@@ -1,0 +1,141 @@
+"""Short WCSPH runs with asserted numbers (small particle counts, short times)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from taichi_sph.config import config_from_dict, load_config
+from taichi_sph.geometry import FLUID
+from taichi_sph.simulation import Simulation
+
+from pathlib import Path
+
+CONFIGS = Path(__file__).resolve().parent.parent / "configs"
+
+
+def run(cfg, tmp_path=None):
+    out = tmp_path / "run" if tmp_path is not None else None
+    return Simulation(cfg, out, render=False, quiet=True).run()
+
+
+def hydrostatic_cfg(**over):
+    data = {
+        "name": "hydro_small", "dim": 2, "gravity": [0.0, -9.81],
+        "domain": {"lo": [-0.1, -0.1], "hi": [0.5, 0.6]},
+        "particles": {"dx": 0.025, "hdx": 2.0, "kernel": "wendland_c2"},
+        "fluid": {"reference_speed": math.sqrt(9.81 * 0.4), "c0_factor": 20.0},
+        "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.4, 0.4], "hydrostatic": True},
+                   {"type": "wall_box", "lo": [0.0, 0.0], "hi": [0.4, 0.5], "layers": 4}],
+        "wcsph": {"density_diffusion": {"model": "fourtakas", "delta": 0.1}, "artificial_viscosity": {"alpha": 0.02}},
+        "walls": {"slip": "free_slip"},
+        "time": {"t_end": 0.3}, "output": {"every": 0.05},
+        "metrics": [{"type": "hydrostatic", "depth": 0.4}],
+    }
+    data.update(over)
+    return config_from_dict(data)
+
+
+def test_hydrostatic_small_tank_pressure(tmp_path):
+    """16 x 16 particles at rest for 0.3 s (~4 sound crossings). Measured 1.5%: at this coarse resolution
+    the free-surface layer and the wall rows carry much of the L2 norm. The bound 2% still fails for the
+    h = 1.3 dx kernel (2.2%, lattice gradient 2.6% low) and for any broken wall or EOS term (several %);
+    the 0.32% of the full-size tank is checked by `taichi-sph run configs/hydrostatic_2d.yaml`."""
+    res = run(hydrostatic_cfg(), tmp_path)
+    s = res.summary
+    assert s["status"] == "ok"
+    assert s["errors"]["pressure_l2_rel"] < 0.02
+    assert s["errors"]["max_speed_over_sqrt_gH"] < 0.02
+    assert s["conservation"]["wall_crossings"] == 0
+    assert s["max_density_error"] < 0.01
+    assert (tmp_path / "run" / "summary.json").exists()
+    assert (tmp_path / "run" / "timeseries.csv").exists()
+    assert list((tmp_path / "run" / "snapshots").glob("*.vtu"))
+
+
+def test_hydrostatic_leapfrog_agrees():
+    res = run(hydrostatic_cfg(wcsph={"integrator": "leapfrog", "artificial_viscosity": {"alpha": 0.02},
+                                     "density_diffusion": {"model": "fourtakas", "delta": 0.1}}))
+    assert res.summary["status"] == "ok"
+    assert res.summary["errors"]["pressure_l2_rel"] < 0.02
+
+
+def periodic_box_cfg(steps_dt: float):
+    return config_from_dict({
+        "name": "periodic_random", "dim": 2,
+        "domain": {"lo": [0.0, 0.0], "hi": [0.5, 0.5], "periodic": [True, True]},
+        "particles": {"dx": 0.025, "hdx": 1.3, "kernel": "wendland_c2"},
+        "fluid": {"reference_speed": 1.0, "c0_factor": 10.0, "background_pressure": 1000.0},
+        "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.5, 0.5],
+                    "velocity": ["0.1 * random()", "0.1 * random()"]}],
+        "wcsph": {"artificial_viscosity": {"alpha": 0.1}},
+        "seed": 3,
+        "time": {"t_end": 1000 * steps_dt, "dt": steps_dt}, "output": {"every": 1.0},
+    })
+
+
+def test_momentum_conserved_periodic_random_velocities():
+    """Symmetric pair forces: total momentum constant to 1e-5 of sum m|v| over 1000 f32 steps."""
+    from taichi_sph.geometry import build_particles
+    from taichi_sph.simulation import make_solver
+    cfg = periodic_box_cfg(5e-4)
+    arrays = build_particles(cfg)
+    solver = make_solver(cfg, arrays)
+    solver.prepare()
+    st0 = solver.host_state()
+    p0 = (st0["mass"][:, None] * st0["v"]).sum(axis=0)
+    scale = float((st0["mass"] * np.linalg.norm(st0["v"], axis=1)).sum())
+    for _ in range(1000):
+        solver.step()
+    st = solver.host_state()
+    p1 = (st["mass"][:, None] * st["v"]).sum(axis=0)
+    assert solver.step_count == 1000
+    assert np.all(np.isfinite(p1))
+    assert np.linalg.norm(p1 - p0) / scale < 1e-5
+    # the flow did evolve (the test would pass trivially if nothing moved)
+    assert np.abs(st["v"] - st0["v"][np.argsort(st0["id"])]).max() > 1e-3
+
+
+def test_dam_break_short_no_wall_crossing(tmp_path):
+    cfg = load_config(CONFIGS / "dam_break_2d.yaml",
+                      ["particles.dx=0.05", "time.t_end=0.3", "output.every=0.01"])
+    res = run(cfg, tmp_path)
+    s = res.summary
+    assert s["status"] == "ok"
+    assert s["conservation"]["wall_crossings"] == 0
+    # the front has left the column (Z > 1.3 by T = 1.3) but not run away (Z < 2.5)
+    from taichi_sph.output import read_timeseries
+    ts = read_timeseries(tmp_path / "run" / "timeseries.csv")
+    z_end = ts["front_Z"][-1]
+    assert 1.3 < z_end < 2.5
+    assert s["max_density_error"] < 0.05
+
+
+def test_column_1d_free_fall():
+    cfg = load_config(CONFIGS / "column_1d.yaml", ["time.t_end=0.25"])
+    res = run(cfg)
+    s = res.summary
+    assert s["status"] == "ok"
+    # centre of mass follows y0 - g t^2 / 2 to 0.5% of the drop before impact (f32, 50 particles)
+    assert s["errors"]["free_fall_com_error_rel"] < 5e-3
+
+
+def test_dam_break_3d_runs_without_crossings():
+    cfg = load_config(CONFIGS / "dam_break_3d.yaml", ["particles.dx=0.05", "time.t_end=0.1"])
+    res = run(cfg)
+    assert res.summary["status"] == "ok"
+    assert res.summary["conservation"]["wall_crossings"] == 0
+    f = res.final_state["kind"] == FLUID
+    assert res.final_state["v"][f].max() > 0.1  # it flows
+
+
+def test_too_large_fixed_dt_is_caught_as_unstable(tmp_path):
+    """dt 10x over the CFL limit (h / c0 x 0.25): the guards must stop the run with exit code 3, not write
+    garbage as ok. (At rest, symplectic Euler survives 4x: the CFL number 0.25 keeps a margin.)"""
+    cfg = hydrostatic_cfg(time={"t_end": 0.3, "dt": 10 * 0.25 * 0.05 / 39.6})
+    res = run(cfg, tmp_path)
+    assert res.summary["status"] == "unstable"
+    assert res.exit_code == 3
+    assert res.summary["instability"]["criterion"] in ("density_error", "non_finite", "left_domain",
+                                                       "neighbour_overflow")
+    assert list((tmp_path / "run" / "snapshots").glob("*.npz"))
