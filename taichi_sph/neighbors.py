@@ -140,29 +140,33 @@ class NeighborSearch:
         self._executor = None  # created lazily with its buffer
         self._scan_buffer = None
 
-        self._scratch: dict[tuple, object] = {}
+        self._bindings: dict[tuple, "_Binding"] = {}
 
     # ------------------------------------------------------------------ public API
 
     def build(self, x, fields: Sequence = ()) -> None:
-        """Wrap, sort particles by cell (permuting `x` and `fields` alike) and build neighbour lists."""
-        self._check_field(x, "x")
-        if not isinstance(x, ti.MatrixField) or x.n != self.dim or x.m != 1:
-            raise ValueError(f"x must be a ti.Vector.field({self.dim}, float, {self.n})")
-        if len({id(f) for f in fields} | {id(x)}) != len(fields) + 1:
-            raise ValueError("each field may be passed once (and x only as the first argument)")
-        for f in fields:
-            self._check_field(f, "a field to permute")
-        scratch = [self._scratch_for(f) for f in fields]
-        x_scratch = self._scratch_for(x)
+        """Wrap, sort particles by cell (permuting `x` and `fields` alike) and build neighbour lists.
 
-        self._assign_cells(x)
-        self._prefix_sum()
-        self._sort_by_cell()
-        self._permute(x, x_scratch)
-        for f, tmp in zip(fields, scratch):
-            self._permute(f, tmp)
-        self._find_neighbors(x)
+        The permutation of a given (x, fields) set is compiled into one kernel the first time that set
+        is seen; on the CPU and Vulkan the whole build is then a single launch.
+        """
+        key = (id(x),) + tuple(id(f) for f in fields)
+        binding = self._bindings.get(key)
+        if binding is None:
+            self._check_field(x, "x")
+            if not isinstance(x, ti.MatrixField) or x.n != self.dim or x.m != 1:
+                raise ValueError(f"x must be a ti.Vector.field({self.dim}, float, {self.n})")
+            if len(set(key)) != len(fields) + 1:
+                raise ValueError("each field may be passed once (and x only as the first argument)")
+            for f in fields:
+                self._check_field(f, "a field to permute")
+            binding = self._bindings[key] = _Binding(self, x, tuple(fields))
+        if self._use_executor:
+            self._assign_cells(x)
+            self._prefix_sum()
+            binding.sort_permute_find()
+        else:
+            binding.build_all()
         self._stats_cache = None
 
     def max_count(self) -> int:
@@ -215,22 +219,13 @@ class NeighborSearch:
         if shape is None or len(shape) < 1 or shape[0] != self.n:
             raise ValueError(f"{what} must be a Taichi field of first dimension {self.n}, got shape {shape}")
 
-    def _scratch_for(self, f):
-        """One scratch buffer per distinct (kind, dtype, shape, element shape), allocated once."""
+    @staticmethod
+    def _new_scratch_like(f):
         if isinstance(f, ti.MatrixField):
-            key = ("matrix", f.dtype, tuple(f.shape), f.n, f.m, f.ndim)
-        else:
-            key = ("scalar", f.dtype, tuple(f.shape))
-        tmp = self._scratch.get(key)
-        if tmp is None:
-            if key[0] == "scalar":
-                tmp = ti.field(f.dtype, shape=f.shape)
-            elif f.ndim == 1:
-                tmp = ti.Vector.field(f.n, f.dtype, shape=f.shape)
-            else:
-                tmp = ti.Matrix.field(f.n, f.m, f.dtype, shape=f.shape)
-            self._scratch[key] = tmp
-        return tmp
+            if f.ndim == 1:
+                return ti.Vector.field(f.n, f.dtype, shape=f.shape)
+            return ti.Matrix.field(f.n, f.m, f.dtype, shape=f.shape)
+        return ti.field(f.dtype, shape=f.shape)
 
     def _read_stats(self) -> tuple[int, int]:
         if self._stats_cache is None:
@@ -247,7 +242,7 @@ class NeighborSearch:
             self._executor.run(self._scan_buffer)  # inclusive, in place
             self._exclusive_from_inclusive(self._scan_buffer)
         else:
-            self._blocked_exclusive_scan()
+            self._scan_kernel()
 
     # ------------------------------------------------------------------ kernels
 
@@ -270,6 +265,18 @@ class NeighborSearch:
 
     @ti.kernel
     def _assign_cells(self, x: ti.template()):
+        self._assign_cells_pass(x)
+
+    @ti.kernel
+    def _scan_kernel(self):
+        self._scan_pass()
+
+    @ti.kernel
+    def _sort_by_cell(self):
+        self._sort_pass()
+
+    @ti.func
+    def _assign_cells_pass(self, x: ti.template()):
         self._stats[0] = 0
         self._stats[1] = 0
         for c in range(self.total_cells):
@@ -292,8 +299,8 @@ class NeighborSearch:
             self._unsorted_cell[i] = c
             self._slot_in_cell[i] = ti.atomic_add(self._cell_count[c], 1)
 
-    @ti.kernel
-    def _blocked_exclusive_scan(self):
+    @ti.func
+    def _scan_pass(self):
         block = ti.static(self._scan_block)
         for b in range(self._scan_blocks):
             s = 0
@@ -319,8 +326,8 @@ class NeighborSearch:
             self.cell_start[c] = inclusive[c] - self._cell_count[c]
         self.cell_start[self.total_cells] = inclusive[self.total_cells - 1]
 
-    @ti.kernel
-    def _sort_by_cell(self):
+    @ti.func
+    def _sort_pass(self):
         for i in range(self.n):
             c = self._unsorted_cell[i]
             self.order[self.cell_start[c] + self._slot_in_cell[i]] = i
@@ -338,15 +345,6 @@ class NeighborSearch:
                 self.order[m] = v
         for k in range(self.n):
             self.cell_id[k] = self._unsorted_cell[self.order[k]]
-
-    @ti.kernel
-    def _permute(self, f: ti.template(), tmp: ti.template()):
-        for I in ti.grouped(tmp):
-            J = I
-            J[0] = self.order[I[0]]
-            tmp[I] = f[J]
-        for I in ti.grouped(f):
-            f[I] = tmp[I]
 
     @ti.func
     def _scan_range(self, x: ti.template(), i, xi, begin, end, found):
@@ -430,9 +428,52 @@ class NeighborSearch:
                             found = self._scan_range(x, i, xs, begin, end, found)
         return found
 
-    @ti.kernel
-    def _find_neighbors(self, x: ti.template()):
+    @ti.func
+    def _find_pass(self, x: ti.template()):
         for i in range(self.n):
             found = self._gather_neighbors(x, i)
             self.count[i] = ti.min(found, self.max_neighbors)
             ti.atomic_max(self._stats[0], found)
+
+
+@ti.data_oriented
+class _Binding:
+    """The build kernels for one set of (x, fields): the permutation of every field is unrolled with
+    ti.static, so sorting, reordering and neighbour finding run as one launch."""
+
+    def __init__(self, ns: NeighborSearch, x, fields: tuple) -> None:
+        self.ns = ns
+        self.x = x
+        self.fields = (x,) + fields
+        self.tmps = tuple(NeighborSearch._new_scratch_like(f) for f in self.fields)
+
+    @ti.func
+    def permute_pass(self):
+        """Apply `order` to x and every bound field (gather into scratch, copy back)."""
+        ns = self.ns
+        for k in ti.static(range(len(self.fields))):
+            f = ti.static(self.fields[k])
+            tmp = ti.static(self.tmps[k])
+            for I in ti.grouped(tmp):
+                J = I
+                J[0] = ns.order[I[0]]
+                tmp[I] = f[J]
+            for I in ti.grouped(f):
+                f[I] = tmp[I]
+
+    @ti.kernel
+    def build_all(self):
+        """Cells, prefix sum, sort, reorder, neighbour lists: each a parallel loop, run in order."""
+        ns = self.ns
+        ns._assign_cells_pass(self.x)
+        ns._scan_pass()
+        ns._sort_pass()
+        self.permute_pass()
+        ns._find_pass(self.x)
+
+    @ti.kernel
+    def sort_permute_find(self):
+        ns = self.ns
+        ns._sort_pass()
+        self.permute_pass()
+        ns._find_pass(self.x)

@@ -1,0 +1,174 @@
+"""`taichi-sph bench`: particle-steps per second, compile time (cold and warm cache) and peak memory.
+
+Each case runs in a fresh subprocess so that compile times and memory are its own: "cold" with an
+empty Taichi offline cache, "warm" with the cache the cold run filled. Particle-steps/s counts fluid
+and wall particles separately (walls are cheaper: no force pass).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from .errors import UsageError
+
+SCENES = {2: "dam_break_2d.yaml", 3: "dam_break_3d.yaml"}
+
+
+def _scene_overrides(dim: int, n_target: int) -> list[str]:
+    """dx for a dam break with about n_target particles (fluid + wall) in total."""
+    from .config import bundled_configs_dir, load_config
+    from .geometry import build_particles
+    path = bundled_configs_dir() / SCENES[dim]
+    base = load_config(path)
+    dx0 = base.particles.dx
+    n0 = build_particles(base).n
+    dx = dx0 * (n0 / n_target) ** (1.0 / dim)
+    for _ in range(3):  # refine: walls scale as dx^-(dim-1)
+        n = build_particles(load_config(path, [f"particles.dx={dx:.6g}"])).n
+        dx *= (n / n_target) ** (1.0 / dim)
+    return [f"particles.dx={dx:.6g}"]
+
+
+def pysph_scene_overrides() -> list[str]:
+    """PySPH's dam_break_2d example: column 1 x 2 m, tank 4 x 4 m, dx = 0.03, h = 1.3 dx, c0 = 10 sqrt(2 g 2)."""
+    return ["particles.dx=0.03", "particles.hdx=1.3", "particles.kernel=cubic_spline",
+            "fluid.reference_speed=6.26", "fluid.c0_factor=10",
+            "wcsph.artificial_viscosity.alpha=0.1", "wcsph.density_diffusion.model=none",
+            "bodies=[{type: fluid_block, lo: [0, 0], hi: [1, 2], hydrostatic: true},"
+            " {type: wall_box, lo: [0, 0], hi: [4, 4], layers: 3, open_top: false}]",
+            "domain.lo=[-0.2, -0.2]", "domain.hi=[4.2, 4.2]", "probes=[]", "metrics=[]"]
+
+
+def worker(spec: dict) -> dict:
+    """Run one case in this process; returns timings. Called by the subprocess."""
+    import resource
+    t_start = time.perf_counter()
+    from .config import bundled_configs_dir, load_config
+    from .geometry import build_particles
+    from .runtime import current_arch_name, init_taichi
+    from .simulation import make_solver
+    cfg = load_config(bundled_configs_dir() / SCENES[spec["dim"]], spec["overrides"])
+    init_taichi(cfg.arch, cfg.precision)
+    arrays = build_particles(cfg)
+    solver = make_solver(cfg, arrays)
+    t0 = time.perf_counter()
+    solver.prepare()
+    solver.step()
+    first_step_s = time.perf_counter() - t0
+    out = {"n_fluid": arrays.n_fluid, "n_wall": arrays.n_wall, "arch": current_arch_name(),
+           "time_to_first_step_s": time.perf_counter() - t_start}
+    if spec.get("t_end"):
+        t1 = time.perf_counter()
+        while solver.t < spec["t_end"]:
+            solver.step()
+        stepping = time.perf_counter() - t1
+        out.update(steps=solver.step_count, stepping_s=stepping, t=solver.t)
+    else:
+        for _ in range(3):
+            solver.step()
+        t1 = time.perf_counter()
+        for _ in range(spec["steps"]):
+            solver.step()
+        stepping = time.perf_counter() - t1
+        out.update(steps=spec["steps"], stepping_s=stepping)
+    n_steps = out["steps"] if spec.get("t_end") else spec["steps"]
+    per_step = stepping / max(n_steps, 1)
+    out["compile_s"] = max(first_step_s - 2 * per_step, 0.0)
+    out["step_ms"] = per_step * 1e3
+    out["particle_steps_per_s"] = arrays.n / per_step
+    out["fluid_particle_steps_per_s"] = arrays.n_fluid / per_step
+    out["wall_particle_steps_per_s"] = arrays.n_wall / per_step
+    out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    extra = solver.extra_summary()
+    if "ppe" in extra:
+        out["ppe_iterations_mean"] = extra["ppe"].get("iterations_mean")
+    return out
+
+
+def _run_worker(spec: dict, cache_dir: str) -> dict:
+    env = dict(os.environ, TI_OFFLINE_CACHE_FILE_PATH=cache_dir, ENABLE_TAICHI_HEADER_PRINT="false")
+    t0 = time.perf_counter()
+    proc = subprocess.run([sys.executable, "-m", "taichi_sph.bench", json.dumps(spec)], capture_output=True,
+                          text=True, env=env)
+    wall = time.perf_counter() - t0
+    if proc.returncode != 0:
+        tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
+        return {"error": tail[0]}
+    result = json.loads(proc.stdout.strip().splitlines()[-1])
+    result["process_wall_s"] = wall
+    return result
+
+
+def _fmt_rate(x: float | None) -> str:
+    return "-" if x is None else f"{x / 1e6:.2f}"
+
+
+def cmd_bench(args) -> int:
+    try:
+        counts = [int(float(c)) for c in str(args.particles).split(",") if c.strip()]
+        dims = [int(d) for d in str(args.dims).split(",") if d.strip()]
+    except ValueError:
+        raise UsageError(f"--particles and --dims take comma-separated numbers, got {args.particles!r}, {args.dims!r}") from None
+    if not counts or any(c < 100 for c in counts):
+        raise UsageError("--particles: give counts of at least 100")
+    if any(d not in SCENES for d in dims):
+        raise UsageError("--dims: 2 and/or 3")
+    if args.steps < 1:
+        raise UsageError("--steps must be >= 1")
+    common = [f"solver={args.solver}"] + list(args.overrides)
+    if args.arch:
+        common.append(f"arch={args.arch}")
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="taichi-sph-bench-") as cache:
+        cases = [(d, n) for d in dims for n in counts]
+        for i, (dim, n) in enumerate(cases):
+            spec = {"dim": dim, "overrides": _scene_overrides(dim, n) + common, "steps": args.steps}
+            first = i == 0 or (dim, n) == cases[0]
+            res = _run_worker(spec, cache)       # cold for the first case of each kernel set
+            warm = _run_worker(dict(spec, steps=max(3, args.steps // 5)), cache)
+            row = {"dim": dim, "target": n, "solver": args.solver, **res,
+                   "compile_warm_s": warm.get("compile_s"), "time_to_first_step_warm_s": warm.get("time_to_first_step_s")}
+            row["cache"] = "cold" if first else "shared"
+            rows.append(row)
+            _print_row(row, header=i == 0)
+        if args.pysph_scene:
+            spec = {"dim": 2, "overrides": pysph_scene_overrides() + common, "t_end": 0.7, "steps": 0}
+            cold_dir = tempfile.mkdtemp(prefix="taichi-sph-bench-cold-")
+            res = _run_worker(spec, cold_dir)
+            warm = _run_worker(spec, cold_dir)
+            row = {"dim": 2, "target": "pysph_dam_break", "solver": args.solver, **res,
+                   "compile_warm_s": warm.get("compile_s"), "time_to_first_step_warm_s": warm.get("time_to_first_step_s")}
+            rows.append(row)
+            print(f"\nPySPH dam_break_2d scene (dx 0.03, to t = 0.7 s): {res.get('n_fluid')} fluid + {res.get('n_wall')} wall, "
+                  f"{res.get('steps')} steps, stepping {res.get('stepping_s', float('nan')):.2f} s "
+                  f"(PySPH 1.0b2 here: 9.6 s), {_fmt_rate(res.get('particle_steps_per_s'))} M particle-steps/s; "
+                  f"cold start to first step {res.get('time_to_first_step_s', float('nan')):.1f} s, "
+                  f"warm {warm.get('time_to_first_step_s', float('nan')):.1f} s")
+    if args.json:
+        Path(args.json).write_text(json.dumps(rows, indent=1))
+    return 0
+
+
+def _print_row(row: dict, header: bool) -> None:
+    if header:
+        print(f"{'dim':>3} {'fluid':>9} {'wall':>8} {'Mpart-steps/s':>13} {'fluid':>7} {'wall':>7} {'ms/step':>8} "
+              f"{'compile cold':>12} {'warm':>6} {'peak MiB':>9}")
+    if "error" in row:
+        print(f"{row['dim']:>3} {row['target']:>9}: failed: {row['error']}")
+        return
+    print(f"{row['dim']:>3} {row['n_fluid']:>9} {row['n_wall']:>8} {_fmt_rate(row['particle_steps_per_s']):>13} "
+          f"{_fmt_rate(row['fluid_particle_steps_per_s']):>7} {_fmt_rate(row['wall_particle_steps_per_s']):>7} "
+          f"{row['step_ms']:>8.2f} {row['compile_s']:>11.1f}s {row.get('compile_warm_s') or math.nan:>5.1f}s "
+          f"{row['peak_rss_mib']:>9.0f}" + (f"  PPE iters {row['ppe_iterations_mean']:.1f}" if row.get("ppe_iterations_mean") else ""))
+    sys.stdout.flush()
+
+
+if __name__ == "__main__":
+    print(json.dumps(worker(json.loads(sys.argv[1]))))
