@@ -525,6 +525,8 @@ def validate(cfg: Config, source: str) -> None:
             raise ConfigError("domain.hi must exceed domain.lo on every axis", source=source, key="domain.hi")
     if not cfg.bodies:
         raise ConfigError("a scene needs at least one fluid body", source=source, key="bodies")
+    if not any(b.type.startswith("fluid") for b in cfg.bodies):
+        raise ConfigError("a scene needs at least one fluid body (fluid_block or fluid_sphere)", source=source, key="bodies")
     eps = 1e-9 * max(cfg.domain.hi[a] - cfg.domain.lo[a] for a in range(d))
     n_fluid_bodies = 0
     for i, b in enumerate(cfg.bodies):

@@ -19,7 +19,7 @@ GOOD = """\
 description: a small valid scene the bad inputs below are made from
 dim: 2
 gravity: [0.0, -9.81]
-domain: {lo: [0.0, 0.0], hi: [1.0, 1.0]}
+domain: {lo: [-0.2, -0.2], hi: [1.2, 1.2]}
 particles: {dx: 0.05, kernel: cubic_spline}
 bodies:
   - {type: fluid_block, lo: [0.0, 0.0], hi: [0.5, 0.5]}
@@ -104,7 +104,7 @@ BAD_CONFIGS = {
                               ["key 'particles.dx'", "number too large"]),
     "t_end_zero": (mutate(("time", "t_end"), 0), ["key 'time.t_end'", "must be > 0", "0"]),
     "fluid_outside_domain": (mutate(("bodies", 0, "hi"), [0.5, 1.5]),
-                             ["key 'bodies[0]'", "lies outside the domain", "[0, 0]..[1, 1]"]),
+                             ["key 'bodies[0]'", "lies outside the domain", "[-0.2, -0.2]..[1.2, 1.2]"]),
     "unknown_kernel": (mutate(("particles", "kernel"), "cubic"),
                        ["key 'particles.kernel'", "unknown value 'cubic'", f"allowed: {KERNELS}"]),
     "unknown_solver": (mutate(("solver",), "sph"), ["key 'solver'", "unknown value 'sph'", "allowed: wcsph, isph"]),

@@ -77,7 +77,7 @@ PARENT = """\
 description: parent scene
 dim: 2
 gravity: [0.0, -9.81]
-domain: {lo: [0.0, 0.0], hi: [2.0, 1.0]}
+domain: {lo: [-0.5, -0.5], hi: [2.5, 1.5]}
 particles: {dx: 0.05, kernel: cubic_spline}
 fluid: {rho0: 998.0, reference_speed: 3.0}
 bodies:
