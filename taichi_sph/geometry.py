@@ -192,7 +192,7 @@ def _remove_overlaps(x, v, kind, p, dx):
     walls = kind == WALL
     if not walls.any():
         return x, v, kind, p
-    cell = np.floor(x / (0.5 * dx)).astype(np.int64)
+    cell = np.round(x / (0.5 * dx)).astype(np.int64)  # lattice points closer than dx/4 share a cell
     cell -= cell.min(axis=0)
     span = cell.max(axis=0) + 1
     code = np.ravel_multi_index(tuple(cell.T), tuple(span))
