@@ -47,6 +47,9 @@ class Particles:
     kernel: str = opt("wendland_c2", "smoothing kernel", choices=("cubic_spline", "wendland_c2", "wendland_c4",
                                                                   "quintic_spline", "gaussian", "poly6_spiky"))
     max_neighbors: int | str = opt(AUTO, "capacity of each particle's neighbour list ('auto': 2.5x the lattice count)")
+    skin: float | str = opt(AUTO, "Verlet skin as a fraction of the support radius: lists cover support x (1 + skin) and "
+                                  "are rebuilt only when a particle may have moved skin/2; 'auto' = 0.15 for WCSPH, "
+                                  "0 (rebuild every step) for ISPH")
 
 
 @dataclass(frozen=True)
@@ -258,6 +261,13 @@ class Config:
             height = self.domain.hi[-1] - self.domain.lo[-1]
             return math.sqrt(2.0 * g * height)
         return 1.0
+
+    @property
+    def skin_fraction(self) -> float:
+        """Verlet skin / support radius ('auto': 0.15 for WCSPH, 0 for ISPH whose steps move particles ~h/4)."""
+        if self.particles.skin == AUTO:
+            return 0.15 if self.solver == "wcsph" else 0.0
+        return float(self.particles.skin)
 
     @property
     def shifting_enabled(self) -> bool:
@@ -581,6 +591,9 @@ def validate(cfg: Config, source: str) -> None:
         raise ConfigError(f"must be > 0 or 'auto', got {cfg.fluid.c0!r}", source=source, key="fluid.c0")
     if cfg.time.dt != AUTO and (isinstance(cfg.time.dt, str) or cfg.time.dt <= 0):
         raise ConfigError(f"must be > 0 or 'auto', got {cfg.time.dt!r}", source=source, key="time.dt")
+    sk = cfg.particles.skin
+    if sk != AUTO and (isinstance(sk, str) or not 0.0 <= sk <= 1.0):
+        raise ConfigError(f"must be 'auto' or a fraction in [0, 1], got {sk!r}", source=source, key="particles.skin")
     mn = cfg.particles.max_neighbors
     if mn != AUTO and (isinstance(mn, str) or mn < 1):
         raise ConfigError(f"must be a positive integer or 'auto', got {mn!r}", source=source, key="particles.max_neighbors")

@@ -41,14 +41,19 @@ class SolverBase:
         self.lattice_volume = self.dx ** cfg.dim
         self.particles = ParticleFields(arrays, cfg.dim)
         self.n = self.particles.n
-        self.max_neighbors = max_neighbors_for(cfg, self.support)
-        self.nsearch = NeighborSearch(cfg.dim, self.n, cfg.domain.lo, cfg.domain.hi, self.support,
+        # Verlet skin: lists hold pairs closer than support + skin; kernels are zero beyond the support
+        self.skin = cfg.skin_fraction * self.support
+        self.list_radius = self.support + self.skin
+        self.max_neighbors = max_neighbors_for(cfg, self.list_radius)
+        self.nsearch = NeighborSearch(cfg.dim, self.n, cfg.domain.lo, cfg.domain.hi, self.list_radius,
                                       f.periodic, self.max_neighbors)
+        self.x_ref = ti.Vector.field(cfg.dim, float, self.n) if self.skin > 0.0 else None
+        self.builds = 0
         self.gravity = ti.Vector.field(cfg.dim, float, shape=())
         self.gravity[None] = list(cfg.gravity_vector)
         if cfg.gravity_ramp > 0.0:
             self.gravity[None] = [0.0] * cfg.dim
-        self.stats = ti.field(float, shape=4)
+        self.stats = ti.field(float, shape=5)
         if f.walls:
             # Adami ghost velocity for no-slip viscous terms; prescribed wall velocity stays in v
             self.v_ghost = self.particles.add_vector() if f.no_slip else None
@@ -64,6 +69,22 @@ class SolverBase:
     def rebuild_neighbors(self) -> None:
         """Cell sort, reorder every persistent field, rebuild neighbour lists."""
         self.nsearch.build(self.particles.x, self.particles.persistent_fields)
+        if self.x_ref is not None:
+            self.x_ref.copy_from(self.particles.x)
+        self.builds += 1
+
+    def maybe_rebuild_neighbors(self, max_displacement: float) -> None:
+        """Rebuild unless every particle is known to be within skin / 2 of where the lists were built
+        (then no pair can have crossed from beyond support + skin to inside the support)."""
+        if self.x_ref is None or 2.0 * max_displacement >= self.skin:
+            self.rebuild_neighbors()
+
+    @ti.func
+    def displacement_since_build(self, a):
+        d = 0.0
+        if ti.static(self.skin > 0.0):
+            d = self.nsearch.pair_vector(self.particles.x[a], self.x_ref[a]).norm()
+        return d
 
     # -- shared passes ---------------------------------------------------------------------
     @ti.kernel
@@ -100,15 +121,20 @@ class SolverBase:
                 P.rho[a] = rho
 
     @ti.func
+    def tait(self, rho):
+        """p = B ((rho/rho0)^gamma - 1) + p_b (optionally clamped at 0)."""
+        p = tait_pressure(rho, self.rho0, self.B, self.gamma, self.p_background)
+        if ti.static(self.features.clamp_negative_pressure):
+            p = ti.max(p, 0.0)
+        return p
+
+    @ti.func
     def tait_pass(self):
-        """p = B ((rho/rho0)^gamma - 1) + p_b for fluid particles (optionally clamped at 0)."""
+        """Tait pressure for every fluid particle."""
         P = self.particles
         for a in range(self.n):
             if P.kind[a] == FLUID:
-                p = tait_pressure(P.rho[a], self.rho0, self.B, self.gamma, self.p_background)
-                if ti.static(self.features.clamp_negative_pressure):
-                    p = ti.max(p, 0.0)
-                P.p[a] = p
+                P.p[a] = self.tait(P.rho[a])
 
     @ti.func
     def adami_wall_pass(self):
@@ -149,25 +175,33 @@ class SolverBase:
 
     @ti.func
     def stats_pass(self):
-        """stats = [max |v|, max |a|, max |rho - rho0| / rho0, number of non-finite values] over fluid."""
-        P = self.particles
-        for s in range(4):
-            self.stats[s] = 0.0
+        """stats = [max |v|, max |a|, max |rho - rho0| / rho0, number of non-finite values, max displacement
+        since the last neighbour build] over fluid."""
+        self.reset_stats()
         for a in range(self.n):
-            if P.kind[a] == FLUID:
-                speed = P.v[a].norm()
-                accel = P.acc[a].norm()
-                derr = ti.abs(P.rho[a] - self.rho0) / self.rho0
-                bad = 0.0
-                for d in ti.static(range(self.dim)):
-                    if not (ti.abs(P.x[a][d]) < 1e30 and ti.abs(P.v[a][d]) < 1e30):
-                        bad = 1.0
-                if not (ti.abs(P.rho[a]) < 1e30):
-                    bad = 1.0
-                ti.atomic_max(self.stats[0], speed)
-                ti.atomic_max(self.stats[1], accel)
-                ti.atomic_max(self.stats[2], derr)
-                ti.atomic_add(self.stats[3], bad)
+            if self.particles.kind[a] == FLUID:
+                self.accumulate_stats(a)
+
+    @ti.func
+    def reset_stats(self):
+        for s in range(5):
+            self.stats[s] = 0.0
+
+    @ti.func
+    def accumulate_stats(self, a):
+        """Fold fluid particle a into the stats (callable from inside any particle loop)."""
+        P = self.particles
+        bad = 0.0
+        for d in ti.static(range(self.dim)):
+            if not (ti.abs(P.x[a][d]) < 1e30 and ti.abs(P.v[a][d]) < 1e30):
+                bad = 1.0
+        if not (ti.abs(P.rho[a]) < 1e30):
+            bad = 1.0
+        ti.atomic_max(self.stats[0], P.v[a].norm())
+        ti.atomic_max(self.stats[1], P.acc[a].norm())
+        ti.atomic_max(self.stats[2], ti.abs(P.rho[a] - self.rho0) / self.rho0)
+        ti.atomic_add(self.stats[3], bad)
+        ti.atomic_max(self.stats[4], self.displacement_since_build(a))
 
     def read_stats(self, reduce: bool = True) -> dict:
         """Host copy of the stats (reduced now unless a fused kernel just did it)."""
@@ -175,7 +209,7 @@ class SolverBase:
             self.reduce_stats()
         s = self.stats.to_numpy()
         return {"max_speed": float(s[0]), "max_acc": float(s[1]), "max_density_error": float(s[2]),
-                "non_finite": int(s[3])}
+                "non_finite": int(s[3]), "max_displacement": float(s[4])}
 
     @ti.func
     def reflect(self, a):

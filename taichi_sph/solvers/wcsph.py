@@ -36,18 +36,20 @@ class WCSPHSolver(SolverBase):
         self.tc_epsilon, self.tc_n = tc.epsilon, tc.n
         self.w_dx = float(self.kernel.w_np(np.array([self.dx]))[0])
         self.shifting = ParticleShifting(self, cfg.shifting.coefficient) if f.shifting else None
+        self.last_dt = 0.0
 
     # -- the pair loop ------------------------------------------------------------------
     @ti.kernel
     def wcsph_rates(self):
-        """One launch: (summation density), Tait EOS, Adami walls, forces + delta-SPH, stats."""
+        """One launch: (summation density + Tait EOS), Adami walls, forces + delta-SPH + stats.
+        With continuity density the pressure is already current: the drift applies the EOS."""
+        self.reset_stats()
         if ti.static(self.features.density == "summation"):
             self.summation_density_pass()
-        self.tait_pass()
+            self.tait_pass()
         if ti.static(self.features.walls):
             self.adami_wall_pass()
         self.wcsph_forces_pass()
-        self.stats_pass()
 
     @ti.func
     def wcsph_forces_pass(self):
@@ -96,6 +98,7 @@ class WCSPHSolver(SolverBase):
                 P.acc[a] = acc
                 if ti.static(self.features.density_diffusion != "none"):
                     self.drho_diffusion[a] = drho
+                self.accumulate_stats(a)
 
     @ti.func
     def continuity_pass(self):
@@ -142,17 +145,29 @@ class WCSPHSolver(SolverBase):
                 P.x[a] += dt * P.v[a]
                 if ti.static(self.features.density == "continuity"):
                     P.rho[a] += dt * (self.drho[a] + self.drho_diffusion[a])
+                    P.p[a] = self.tait(P.rho[a])
                 if ti.static(self.features.reflecting):
                     self.reflect(a)
 
     # -- one step ---------------------------------------------------------------------------
-    def evaluate_forces(self) -> None:
-        """Neighbours, then density, pressure, walls, accelerations and stats in one launch."""
-        self.rebuild_neighbors()
+    def evaluate_forces(self, dt_since: float = 0.0) -> None:
+        """Neighbours (if needed), then walls, accelerations and stats in one launch.
+
+        Lists are rebuilt when a particle may have moved skin/2 since the last build:
+        bound = last measured displacement + dt (|v|max + dt |a|max) (+ the shifting cap)."""
+        if self.builds == 0:
+            self.rebuild_neighbors()
+        else:
+            s = self.stats_now
+            bound = s["max_displacement"] + dt_since * (s["max_speed"] + dt_since * s["max_acc"])
+            if self.shifting is not None:
+                bound += self.shifting.max_shift
+            self.maybe_rebuild_neighbors(bound)
         self.wcsph_rates()
         self.stats_now = self.read_stats(reduce=False)
 
     def prepare(self) -> None:
+        self.tait_equation_of_state()
         self.evaluate_forces()
 
     def step(self) -> float:
@@ -163,17 +178,18 @@ class WCSPHSolver(SolverBase):
         """
         self.update_body_force()
         if self.step_count > 0 and self.features.integrator == "symplectic_euler":
-            self.evaluate_forces()
+            self.evaluate_forces(self.last_dt)
         s = self.stats_now
         dt = self.choose_dt(s["max_speed"], s["max_acc"], self.c0)
         if self.features.integrator == "leapfrog":
             self.kick_continuity_drift(0.5 * dt, dt)
-            self.evaluate_forces()
+            self.evaluate_forces(dt)
             self.kick(0.5 * dt)
         else:
             self.kick_continuity_drift(dt, dt)
         if self.shifting is not None:
             self.shifting.apply(dt)
+        self.last_dt = dt
         self.t += dt
         self.step_count += 1
         return dt
