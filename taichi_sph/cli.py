@@ -123,6 +123,8 @@ def cmd_run(args) -> int:
             inst = s["instability"]
             print(f"unstable: {inst['criterion']} at step {inst['step']}, t = {inst['t']:.4g} s, particle {inst['particle']}: "
                   f"{inst['detail']}; last good state kept in {out}/snapshots")
+        if s["status"] == "interrupted":
+            print(f"interrupted at t = {s['t_end']:.4g} s: state kept as a snapshot in {out}/snapshots")
         print(f"output: {out}")
     return result.exit_code
 

@@ -76,3 +76,24 @@ def test_render_command_rerenders_from_snapshots(tmp_path):
     frames = _frames(run)
     assert len(frames) == len(list((run / "snapshots").glob("*.npz")))
     assert (run / "video.gif").exists()
+
+
+def test_ctrl_c_writes_checkpoint_and_exits_130(tmp_path):
+    import signal
+    import time
+    run = tmp_path / "int"
+    proc = subprocess.Popen([sys.executable, "-m", "taichi_sph", "run", str(CONFIGS / "dam_break_2d.yaml"), "--out",
+                             str(run), "--no-render", "--quiet", "--set", "particles.dx=0.05"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 120
+    while not (run / "timeseries.csv").exists() and time.time() < deadline and proc.poll() is None:
+        time.sleep(0.2)
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["status"] == "interrupted"
+    assert 0 < summary["t_end"] < 1.0
+    assert list((run / "snapshots").glob("*.npz"))
+    assert "Traceback" not in err
