@@ -1,6 +1,17 @@
 """A-priori checks printed before a run and stored in summary.json `warnings`.
 
-Mach number, time-step limits (CFL, viscous, force), particles per support, wall layers vs support.
+Each check judges one thing that can be known before the first step:
+
+- `mach`          WCSPH: Ma = U / c0 (expected speed over sound speed); density errors ~ Ma^2
+- `cfl_number`    the adaptive step's Courant number `time.cfl`
+- `cfl_dt`, `force_dt`, `viscous_dt`   a fixed `time.dt` against the CFL (h / (c0 + U)), force
+                  (sqrt(h / |g|)) and viscous (0.125 h^2 / nu) limits
+- `support`       neighbours per kernel support on the initial lattice
+- `wall_layers`   wall thickness against the kernel support (a wall box outside the domain is a
+                  config error, refused by config.validate)
+
+`severe=True` marks a configuration that will blow up or give garbage: `taichi-sph stability`
+refuses to run those and reports the message as the reason.
 """
 
 from __future__ import annotations
@@ -13,10 +24,18 @@ import numpy as np
 from .config import AUTO, Config
 from .kernels import support_factor
 
+# Courant number above which the reference step (cfl 0.25) is exceeded: a warning
+CFL_WARN = 0.4
+# Courant number on h at which explicit SPH schemes lose stability for sound waves: severe
+CFL_SEVERE = 1.0
+# Mach number beyond which WCSPH density errors exceed ~1%: a warning; at 1 the fluid is softer than its flow
+MACH_WARN = 0.1
+MACH_SEVERE = 1.0
+
 
 @dataclass(frozen=True)
 class CheckResult:
-    code: str          # short id: mach, cfl, viscous_dt, force_dt, support, wall_layers
+    code: str          # short id: mach, cfl_number, cfl_dt, force_dt, viscous_dt, support, wall_layers
     message: str
     severe: bool = False   # the run is very likely to blow up or give garbage
 
@@ -24,11 +43,16 @@ class CheckResult:
         return self.message
 
 
+def signal_speed(cfg: Config) -> float:
+    """Speed that limits the explicit step: c0 + U for WCSPH, U for ISPH (no sound waves) [m/s]."""
+    return cfg.expected_speed + (cfg.sound_speed if cfg.solver == "wcsph" else 0.0)
+
+
 def time_step_limits(cfg: Config) -> dict[str, float]:
-    """The a-priori step limits: CFL (sound + expected speed for WCSPH), viscous, force (gravity)."""
+    """The a-priori step limits at the configured Courant number `time.cfl` [s]:
+    cfl = C h / (c0 + U) (WCSPH) or C h / U (ISPH); force = C sqrt(h / |g|); viscous = 0.125 h^2 / nu."""
     h = cfg.h
-    speed = cfg.expected_speed + (cfg.sound_speed if cfg.solver == "wcsph" else 0.0)
-    limits = {"cfl": cfg.time.cfl * h / speed}
+    limits = {"cfl": cfg.time.cfl * h / signal_speed(cfg)}
     if cfg.fluid.nu > 0:
         limits["viscous"] = 0.125 * h * h / cfg.fluid.nu
     g = float(np.linalg.norm(cfg.gravity_vector))
@@ -37,42 +61,110 @@ def time_step_limits(cfg: Config) -> dict[str, float]:
     return limits
 
 
-def a_priori_checks(cfg: Config) -> list[CheckResult]:
-    """Everything that can be judged before the first step."""
+def hard_time_step_limits(cfg: Config) -> dict[str, float]:
+    """Limits beyond which the explicit update is unstable, not just inaccurate [s]:
+    Courant number 1 on h for the signal and force limits, 2 x 0.125 h^2 / nu for viscosity."""
+    h = cfg.h
+    limits = {"cfl": CFL_SEVERE * h / signal_speed(cfg)}
+    if cfg.fluid.nu > 0:
+        limits["viscous"] = 0.25 * h * h / cfg.fluid.nu
+    g = float(np.linalg.norm(cfg.gravity_vector))
+    if g > 0:
+        limits["force"] = CFL_SEVERE * math.sqrt(h / g)
+    return limits
+
+
+def _mach(cfg: Config) -> list[CheckResult]:
+    if cfg.solver != "wcsph":
+        return []
+    mach = cfg.expected_speed / cfg.sound_speed
+    if mach <= MACH_WARN:
+        return []
+    if mach >= MACH_SEVERE:
+        msg = (f"Mach number {mach:.2f} = expected speed {cfg.expected_speed:.3g} m/s / c0 {cfg.sound_speed:.3g} m/s "
+               f"is >= 1: the fluid is softer than its own flow (it compresses instead of pushing back); raise "
+               f"fluid.c0 to >= {10 * cfg.expected_speed:.3g} m/s")
+    else:
+        msg = (f"Mach number {mach:.2f} = expected speed {cfg.expected_speed:.3g} m/s / c0 {cfg.sound_speed:.3g} m/s "
+               f"exceeds {MACH_WARN}: density errors ~ Ma^2 = {mach * mach:.1%}; raise fluid.c0 to >= "
+               f"{10 * cfg.expected_speed:.3g} m/s")
+    return [CheckResult("mach", msg, severe=mach >= MACH_SEVERE)]
+
+
+def _time_step(cfg: Config) -> list[CheckResult]:
     out: list[CheckResult] = []
-    if cfg.solver == "wcsph":
-        mach = cfg.expected_speed / cfg.sound_speed
-        if mach > 0.1:
+    if cfg.time.dt == AUTO:
+        c = cfg.time.cfl
+        if c > CFL_WARN:
             out.append(CheckResult(
-                "mach", f"Mach number {mach:.2f} = expected speed {cfg.expected_speed:.3g} m/s / c0 {cfg.sound_speed:.3g} m/s "
-                        f"exceeds 0.1: density errors ~ Ma^2 = {mach * mach:.1%}; raise fluid.c0 to >= "
-                        f"{10 * cfg.expected_speed:.3g} m/s", severe=mach >= 1.0))
-    if cfg.time.dt != AUTO:
-        dt = float(cfg.time.dt)
-        limits = time_step_limits(cfg)
-        # the CFL limit at CFL number 0.25 regardless of the configured cfl, as the stable reference
-        ref = {k: (v / cfg.time.cfl * 0.25 if k in ("cfl", "force") else v) for k, v in limits.items()}
-        for name, lim in ref.items():
-            if dt > lim * 1.0001:
-                ratio = dt / lim
-                out.append(CheckResult(
-                    f"{name}_dt", f"fixed time.dt = {dt:.3g} s is {ratio:.1f}x the {name} limit {lim:.3g} s",
-                    severe=ratio >= 2.0))
-    # neighbours within the support on the initial lattice
+                "cfl_number", f"time.cfl = {c:g} exceeds {CFL_WARN}: " + (
+                    f"above {CFL_SEVERE:g} a signal crosses more than h per step, outside the CFL condition"
+                    if c > CFL_SEVERE else "expect noisy pressure; 0.25 is the usual choice"),
+                severe=c > CFL_SEVERE))
+        return out
+    dt = float(cfg.time.dt)
+    # the reference limits at Courant number 0.25 regardless of the configured cfl
+    h = cfg.h
+    ref = {"cfl": 0.25 * h / signal_speed(cfg)}
+    hard = hard_time_step_limits(cfg)
+    if "force" in hard:
+        ref["force"] = 0.25 * hard["force"] / CFL_SEVERE
+    if "viscous" in hard:
+        ref["viscous"] = 0.125 * h * h / cfg.fluid.nu
+    for name, lim in ref.items():
+        if dt > lim * 1.0001:
+            ratio = dt / lim
+            severe = dt > hard[name] * 1.0001
+            if severe:
+                tail = (f"; beyond the stability limit {hard[name]:.3g} s" + (
+                    f" (Courant number {CFL_SEVERE * dt / hard[name]:.2g} > {CFL_SEVERE:g} on h: outside the CFL "
+                    "condition, where an explicit update has no stability guarantee)" if name != "viscous" else ""))
+            else:
+                tail = f" (stability limit {hard[name]:.3g} s)"
+            out.append(CheckResult(f"{name}_dt", f"fixed time.dt = {dt:.3g} s is {ratio:.1f}x the {name} limit "
+                                                 f"{lim:.3g} s{tail}", severe=severe))
+    return out
+
+
+def lattice_neighbours(cfg: Config) -> int:
+    """Neighbours of one particle within the kernel support on the initial lattice."""
     support = support_factor(cfg.particles.kernel) * cfg.h
     n = int(math.ceil(support / cfg.particles.dx))
     offs = np.arange(-n, n + 1)
     grids = np.meshgrid(*([offs] * cfg.dim), indexing="ij")
     r = np.sqrt(sum(g.astype(float) ** 2 for g in grids)) * cfg.particles.dx
-    per_support = int(np.count_nonzero(r < support)) - 1
+    return int(np.count_nonzero(r < support)) - 1
+
+
+def _support(cfg: Config) -> list[CheckResult]:
+    per_support = lattice_neighbours(cfg)
     minimum = {1: 4, 2: 12, 3: 30}[cfg.dim]
-    if per_support < minimum:
-        out.append(CheckResult("support", f"only {per_support} neighbours per support (hdx = {cfg.particles.hdx}); "
-                                          f"use particles.hdx >= 1.2 for at least {minimum}", severe=per_support < minimum // 2))
-    need = int(math.ceil(support / cfg.particles.dx))
+    if per_support >= minimum:
+        return []
+    return [CheckResult("support", f"only {per_support} neighbours per support (hdx = {cfg.particles.hdx}); "
+                                   f"use particles.hdx >= 1.2 for at least {minimum}", severe=per_support < minimum // 2)]
+
+
+def _walls(cfg: Config) -> list[CheckResult]:
+    out: list[CheckResult] = []
+    dx = cfg.particles.dx
+    support = support_factor(cfg.particles.kernel) * cfg.h
+    need = int(math.ceil(support / dx - 1e-9))
     for i, b in enumerate(cfg.bodies):
         if b.type == "wall_box" and b.layers < need:
+            thin = b.layers * dx < 0.5 * support
             out.append(CheckResult("wall_layers", f"bodies[{i}] has {b.layers} wall layers but the kernel support "
                                                   f"({support:.3g} m) spans {need}: particles near the wall lack "
-                                                  f"neighbours; set layers: {need}"))
+                                                  f"neighbours" + (" and can pass through it" if thin else "")
+                                                  + f"; set layers: {need}", severe=thin))
     return out
+
+
+def a_priori_checks(cfg: Config) -> list[CheckResult]:
+    """Everything that can be judged before the first step."""
+    return _mach(cfg) + _time_step(cfg) + _support(cfg) + _walls(cfg)
+
+
+def severe_checks(cfg: Config) -> list[CheckResult]:
+    """The checks that make a run pointless (stability's reason to refuse it)."""
+    return [c for c in a_priori_checks(cfg) if c.severe]
