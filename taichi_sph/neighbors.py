@@ -61,6 +61,7 @@ class NeighborSearch:
         support_radius: float,
         periodic: Sequence[bool],
         max_neighbors: int,
+        group=None,
     ) -> None:
         if dim not in (1, 2, 3):
             raise ConfigError(f"dimension must be 1, 2 or 3, got {dim}")
@@ -141,6 +142,10 @@ class NeighborSearch:
         self._scan_buffer = None
 
         self._bindings: dict[tuple, "_Binding"] = {}
+        # optional i32 field (permuted with the particles): pairs whose members both have group != 0
+        # (wall-wall pairs, which no WCSPH term uses) are left out of the lists
+        self.group = group
+        self._has_group = group is not None
 
     # ------------------------------------------------------------------ public API
 
@@ -361,7 +366,17 @@ class NeighborSearch:
         """
         h2 = ti.static(self.support_radius * self.support_radius)
         cap = ti.static(self.max_neighbors)
-        if found + end - begin <= cap:
+        grouped = False
+        if ti.static(self._has_group):
+            grouped = self.group[i] != 0
+        if grouped:  # only partners outside the group
+            for j in range(begin, end):
+                r = xi - x[j]
+                if r.dot(r) < h2 and self.group[j] == 0:
+                    if found < cap:
+                        self.neighbors[i, found] = j
+                    found += 1
+        elif found + end - begin <= cap:
             for j in range(begin, end):
                 r = xi - x[j]
                 self.neighbors[i, found] = j

@@ -327,3 +327,29 @@ def test_short_periodic_axis_is_a_config_error():
     with pytest.raises(ConfigError, match="periodic length must be >= 3 support radii"):
         NeighborSearch(2, 10, [0.0, 0.0], [1.0, 1.0], 0.4, (True, False), 16)
     NeighborSearch(2, 10, [0.0, 0.0], [1.0, 1.0], 0.4, (False, False), 16)  # open axes are fine
+
+
+def test_group_pairs_are_left_out():
+    """With a group field (walls = 1), wall-wall pairs are skipped; every pair with a fluid member stays."""
+    n = 600
+    rng = np.random.default_rng(21)
+    xs = rng.uniform(0.0, 1.0, (n, 2))
+    grp_np = (rng.uniform(size=n) < 0.5).astype(np.int32)
+    x = vec_field(xs)
+    grp = ti.field(ti.i32, n)
+    grp.from_numpy(grp_np)
+    pid = ti.field(ti.i32, n)
+    pid.from_numpy(np.arange(n, dtype=np.int32))
+    ns = NeighborSearch(2, n, [0.0, 0.0], [1.0, 1.0], 0.1, (False, False), 64, group=grp)
+    ns.build(x, [grp, pid])
+    xn, g, ids = x.to_numpy().astype(np.float64), grp.to_numpy(), pid.to_numpy()
+    assert np.array_equal(g, grp_np[ids])  # the group field was permuted with the particles
+    dist = np.linalg.norm(xn[:, None] - xn[None], axis=-1)
+    np.fill_diagonal(dist, np.inf)
+    count, nb = ns.count.to_numpy(), ns.neighbors.to_numpy()
+    for i in range(n):
+        found = set(nb[i, : count[i]].tolist())
+        expected = {j for j in np.where(dist[i] < 0.1 - 1e-6)[0] if not (g[i] and g[j])}
+        maybe = {j for j in np.where(np.abs(dist[i] - 0.1) <= 1e-6)[0]}
+        assert expected <= found <= expected | maybe
+        assert not any(g[i] and g[j] for j in found)

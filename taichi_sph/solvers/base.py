@@ -21,6 +21,7 @@ class SolverBase:
     """Common state and passes. Subclasses implement `prepare()` and `step() -> dt`."""
 
     name = "base"
+    wall_wall_pairs = True  # solvers that never couple two wall particles set False: shorter wall lists
 
     def __init__(self, cfg: Config, arrays: ParticleArrays) -> None:
         self.cfg = cfg
@@ -46,7 +47,8 @@ class SolverBase:
         self.list_radius = self.support + self.skin
         self.max_neighbors = max_neighbors_for(cfg, self.list_radius)
         self.nsearch = NeighborSearch(cfg.dim, self.n, cfg.domain.lo, cfg.domain.hi, self.list_radius,
-                                      f.periodic, self.max_neighbors)
+                                      f.periodic, self.max_neighbors,
+                                      group=None if self.wall_wall_pairs else self.particles.kind)
         self.x_ref = ti.Vector.field(cfg.dim, float, self.n) if self.skin > 0.0 else None
         self.builds = 0
         self.gravity = ti.Vector.field(cfg.dim, float, shape=())

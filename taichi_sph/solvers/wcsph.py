@@ -21,6 +21,7 @@ class WCSPHSolver(SolverBase):
     """Tait EOS, symmetric pressure gradient, Monaghan and Morris viscosities, delta-SPH, Adami walls."""
 
     name = "wcsph"
+    wall_wall_pairs = False
 
     def __init__(self, cfg: Config, arrays: ParticleArrays) -> None:
         super().__init__(cfg, arrays)
