@@ -260,7 +260,7 @@ def _fmt(v) -> str:
     if isinstance(v, int):
         return str(v)
     if isinstance(v, float):
-        return "nan" if not math.isfinite(v) else f"{v:.4g}"
+        return str(v) if not math.isfinite(v) else f"{v:.4g}"
     return str(v)
 
 

@@ -328,7 +328,7 @@ def _why(row: dict) -> str:
     if anyway:
         text += f" [run anyway: {anyway['verdict']}" + (f", {anyway['criterion']}" if anyway.get("criterion") else "") + \
                 (f", max density error {_fmt(anyway.get('max_density_error'))}" if anyway.get("max_density_error") is not None else "") + "]"
-    return text.replace("|", "/")
+    return text.replace("|", "\\|")  # a pipe inside a table cell
 
 
 def stability_markdown(result: dict) -> str:
