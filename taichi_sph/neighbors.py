@@ -369,25 +369,26 @@ class NeighborSearch:
         grouped = False
         if ti.static(self._has_group):
             grouped = self.group[i] != 0
-        if grouped:  # only partners outside the group
-            for j in range(begin, end):
-                r = xi - x[j]
-                if r.dot(r) < h2 and self.group[j] == 0:
-                    if found < cap:
-                        self.neighbors[i, found] = j
-                    found += 1
-        elif found + end - begin <= cap:
-            for j in range(begin, end):
-                r = xi - x[j]
-                self.neighbors[i, found] = j
-                found += ti.cast(r.dot(r) < h2, ti.i32)
-        else:
-            for j in range(begin, end):
-                r = xi - x[j]
-                if r.dot(r) < h2:
-                    if found < cap:
-                        self.neighbors[i, found] = j
-                    found += 1
+            if grouped:  # only partners outside the group
+                for j in range(begin, end):
+                    r = xi - x[j]
+                    if r.dot(r) < h2 and self.group[j] == 0:
+                        if found < cap:
+                            self.neighbors[i, found] = j
+                        found += 1
+        if not grouped:
+            if found + end - begin <= cap:
+                for j in range(begin, end):
+                    r = xi - x[j]
+                    self.neighbors[i, found] = j
+                    found += ti.cast(r.dot(r) < h2, ti.i32)
+            else:
+                for j in range(begin, end):
+                    r = xi - x[j]
+                    if r.dot(r) < h2:
+                        if found < cap:
+                            self.neighbors[i, found] = j
+                        found += 1
         return found
 
     @ti.func
