@@ -37,7 +37,7 @@ def init_taichi(arch: str = "cpu", precision: str = "f32", *, force: bool = Fals
     if _current == key and not force:
         return
     fp = ti.f64 if precision == "f64" else ti.f32
-    kwargs = dict(default_fp=fp, default_ip=ti.i32, offline_cache=True, debug=debug, log_level=ti.WARN)
+    kwargs = dict(default_fp=fp, default_ip=ti.i32, offline_cache=True, debug=debug, log_level=ti.ERROR)
     with contextlib.redirect_stdout(io.StringIO()):  # "[Taichi] Starting on arch=..." banner
         if arch == "cpu":
             ti.init(arch=ti.cpu, **kwargs)
