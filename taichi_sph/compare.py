@@ -29,8 +29,8 @@ from .output import RunFolder, load_snapshot, read_timeseries, to_jsonable
 
 SOLVERS = ("wcsph", "isph")
 # scene error metrics, best first, that stand for "the" error of a scene
-PRIMARY_ERRORS = ("pressure_l2_rel", "front_rms_shifted", "front_rms_raw", "l1_velocity_error", "decay_rate_error",
-                  "linf_velocity_error", "centerline_rms", "free_fall_com_error_rel")
+PRIMARY_ERRORS = ("pressure_l2_rel", "front_rms_shifted", "front_rms_raw", "l1_velocity", "linf_velocity_rel",
+                  "centerline_rms", "free_fall_com_error_rel")
 _ERROR_TAGS = ("error", "rms", "l1", "l2", "linf")
 
 

@@ -220,6 +220,8 @@ class Simulation:
                 progress.update(solver.t, solver.step_count)
         finally:
             progress.close()
+            if renderer is not None and hasattr(renderer, "close"):
+                renderer.close()  # release the GGUI window now, not when GC gets to it
             try:
                 signal.signal(signal.SIGINT, old_handler)
             except ValueError:

@@ -139,3 +139,16 @@ def test_too_large_fixed_dt_is_caught_as_unstable(tmp_path):
     assert res.summary["instability"]["criterion"] in ("density_error", "non_finite", "left_domain",
                                                        "neighbour_overflow")
     assert list((tmp_path / "run" / "snapshots").glob("*.npz"))
+
+
+def test_reflecting_floor_keeps_particles_in_the_domain():
+    """The simple-script boundary: no wall particles, positions mirrored at the domain face."""
+    cfg = load_config(CONFIGS / "column_1d.yaml", [
+        "bodies=[{type: fluid_block, lo: [0.5], hi: [1.0]}]", "domain.lo=[0.0]",
+        "reflecting.enabled=true", "reflecting.restitution=0.5", "time.t_end=0.4"])
+    res = run(cfg)
+    assert res.summary["status"] == "ok"
+    x = res.final_state["x"][:, 0]
+    assert x.min() >= 0.0
+    assert x.min() < 0.05  # it did reach the floor
+    assert "reflecting_faces" in res.summary["features"]
