@@ -145,7 +145,7 @@ def test_reflecting_floor_keeps_particles_in_the_domain():
     """The simple-script boundary: no wall particles, positions mirrored at the domain face."""
     cfg = load_config(CONFIGS / "column_1d.yaml", [
         "bodies=[{type: fluid_block, lo: [0.5], hi: [1.0]}]", "domain.lo=[0.0]",
-        "reflecting.enabled=true", "reflecting.restitution=0.5", "time.t_end=0.4"])
+        "reflecting.enabled=true", "reflecting.restitution=0.5", "time.t_end=0.34"])
     res = run(cfg)
     assert res.summary["status"] == "ok"
     x = res.final_state["x"][:, 0]
