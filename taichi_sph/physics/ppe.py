@@ -1,0 +1,265 @@
+"""The pressure Poisson equation of the projection (ISPH) scheme: its SPH terms and its matrix-free solvers.
+
+The discrete PPE at fluid particle a (Shao & Lo 2003 Laplacian, Cummins & Rudman 1999 projection):
+
+    div(grad p / rho)_a = sum_b m_b 8 / (rho_a + rho_b)^2 (p_a - p_b) (r_ab . grad_a W_ab) / (r_ab^2 + eta^2) = s_a
+
+With K_ab = shao_lo_laplacian_weight(...) >= 0 the left side is -sum_b K_ab (p_a - p_b): a weighted
+graph Laplacian. Multiplying row a by V_a = m_a / rho0 makes it symmetric (V_a K_ab = V_b K_ba), and
+positive definite once some particle has a prescribed (Dirichlet) pressure.
+
+`MatrixFreePPE` stores that system as per-pair coefficients beside the neighbour list and solves it with
+weighted Jacobi or Jacobi-preconditioned conjugate gradients, one Taichi kernel per iteration; every
+scalar of the iteration stays on the device and the host reads one residual norm every few iterations.
+"""
+
+# No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
+import math
+
+import taichi as ti
+
+# role of a particle in the system
+UNKNOWN, DIRICHLET, NOT_IN_PPE = 0, 1, 2
+# slots of the scalar field the kernels reduce into
+RR, BB, RZ, RZ_NEW, PQ, N_UNKNOWN, N_DIRICHLET, SUM_B, SUM_P = range(9)
+# iterations between two read-backs of the residual norm
+CHECK_EVERY = {"cg": 2, "jacobi": 10}
+PPE_SOLVERS = tuple(CHECK_EVERY)
+
+
+# ----------------------------------------------------------------------------- terms
+@ti.func
+def shao_lo_laplacian_weight(m_b: float, rho_a: float, rho_b: float, r_ab, r2: float, eta2: float, grad_w) -> float:
+    """K_ab = -m_b 8 / (rho_a + rho_b)^2 (r_ab . grad_a W_ab) / (r^2 + eta^2) >= 0 (grad_a W_ab points from a
+    towards b), so that the Shao & Lo Laplacian is div(grad p / rho)_a = -sum_b K_ab (p_a - p_b)."""
+    rho_ab = rho_a + rho_b
+    return -8.0 * m_b / (rho_ab * rho_ab) * r_ab.dot(grad_w) / (r2 + eta2)
+
+
+@ti.func
+def velocity_divergence_term(vol_b: float, v_ab, grad_w) -> float:
+    """One pair's share of div(v)_a = -sum_b V_b v_ab . grad_a W_ab, v_ab = v_a - v_b."""
+    return -vol_b * v_ab.dot(grad_w)
+
+
+@ti.func
+def ppe_source(div_v_star: float, rho: float, rho0: float, dt: float, dt_relax: float, beta: float) -> float:
+    """Right side s_a of div(grad p / rho) = s_a [1/s^2]:
+
+        divergence (Cummins & Rudman 1999):      s = div(v*) / dt
+        density invariance (Shao & Lo 2003):     s = (rho0 - rho*) / (rho0 dt dt_relax),  rho* = rho - dt rho div(v*)
+        blend:                                   s = (1 - beta) s_div + beta s_density
+    beta = 0 is the first, beta = 1 the second. dt_relax is dt (Shao & Lo) except in a step shortened
+    to land on an output or end time: there the unshortened dt keeps the density correction's velocity
+    kick, ~ (rho0 - rho) / rho0 h / dt_relax, what it is in every other step.
+    """
+    s_div = div_v_star / dt
+    s_density = (rho0 - rho) / (rho0 * dt * dt_relax) + rho / rho0 * s_div
+    return (1.0 - beta) * s_div + beta * s_density
+
+
+@ti.func
+def neumann_wall_pressure_difference(rho: float, body_acc, r_aw) -> float:
+    """p_a - p_w for a fluid particle a and a wall particle w when the wall takes the pressure of a fluid
+    in hydrostatic balance, pair by pair (the pairwise form of Adami et al. 2012):
+    p_w = p_a + rho (g - a_w) . (x_w - x_a), so p_a - p_w = rho (g - a_w) . r_aw, r_aw = x_a - x_w.
+    It does not depend on p: the wall is a Neumann condition dp/dn = rho (g - a_w) . n."""
+    return rho * body_acc.dot(r_aw)
+
+
+@ti.func
+def free_surface_pressure(rho0: float, depth: float, grad_c, body_acc, acc) -> float:
+    """Dirichlet value at a free-surface particle `depth` below the surface (dx/2 on a lattice).
+
+    The surface is an isobar, so grad p = rho0 (g - a) (Euler) is normal to it and p = depth |grad p|.
+    The kernel normal n = -grad C / |grad C| (grad C = sum_b V_b grad_a W_ab points into the fluid) only
+    decides the sign: zero where grad p points out of the fluid (no tension at a free surface). This is
+    rho0 |g| dx/2 on a surface at rest, also at a contact line where n leans off the vertical, and 0 in
+    free fall (a = g).
+    """
+    grad_p = rho0 * (body_acc - acc)
+    p = 0.0
+    if grad_c.dot(grad_p) > 0.0:
+        p = depth * grad_p.norm()
+    return p
+
+
+# ----------------------------------------------------------------------------- the linear system
+@ti.data_oriented
+class MatrixFreePPE:
+    """A p = b over the particles with role UNKNOWN, A = diag - offdiag stored beside the neighbour list:
+
+        (A x)_a = sum_k coeff[a, k] (x_a - x_{neighbors[a, k]}) + diag_dirichlet[a] x_a
+
+    (coeff is zero for neighbours that are not unknowns; differences keep f32 accurate where the
+    pressure is large). The caller fills role, coeff, diag (= A_aa), diag_dirichlet, rhs and the
+    scalars N_UNKNOWN, N_DIRICHLET, BB (= |b|^2), SUM_B; `solve()` iterates on the field `p` in place,
+    starting from its current values (warm start).
+    """
+
+    def __init__(self, p, nsearch, n: int, max_neighbors: int, solver: str, tolerance: float, max_iterations: int,
+                 omega: float) -> None:
+        if solver not in PPE_SOLVERS:
+            raise ValueError(f"unknown PPE solver '{solver}'; allowed: {', '.join(PPE_SOLVERS)}")
+        self.p = p
+        self.nsearch = nsearch
+        self.n = n
+        self.solver = solver
+        self.tolerance = tolerance
+        self.max_iterations = max_iterations
+        self.omega = omega
+        self.role = ti.field(ti.i32, n)
+        self.rhs = ti.field(float, n)
+        self.diag = ti.field(float, n)
+        self.diag_dirichlet = ti.field(float, n)
+        self.coeff = ti.field(float, (n, max_neighbors))
+        self.res = ti.field(float, n)
+        if solver == "cg":
+            self.z = ti.field(float, n)
+            self.d = ti.field(float, n)
+            self.q = ti.field(float, n)
+        self.scalars = ti.field(float, 9)
+
+    @ti.func
+    def apply(self, x: ti.template(), a):
+        """(A x)_a."""
+        NS = self.nsearch
+        xa = x[a]
+        ax = self.diag_dirichlet[a] * xa
+        for k in range(NS.count[a]):
+            ax += self.coeff[a, k] * (xa - x[NS.neighbors[a, k]])
+        return ax
+
+    # -- pure Neumann problems (no Dirichlet particle): A has the constants as null space ---------------
+    @ti.kernel
+    def remove_rhs_mean(self):
+        """Project b onto the range of A (zero mean) and recompute |b|^2."""
+        mean = self.scalars[SUM_B] / ti.max(self.scalars[N_UNKNOWN], 1.0)
+        self.scalars[BB] = 0.0
+        for a in range(self.n):
+            if self.role[a] == UNKNOWN:
+                self.rhs[a] -= mean
+                ti.atomic_add(self.scalars[BB], self.rhs[a] * self.rhs[a])
+
+    @ti.kernel
+    def set_mean(self, level: float):
+        """Fix the free constant: the unknowns' mean pressure becomes `level`."""
+        self.scalars[SUM_P] = 0.0
+        for a in range(self.n):
+            if self.role[a] == UNKNOWN:
+                ti.atomic_add(self.scalars[SUM_P], self.p[a])
+        shift = level - self.scalars[SUM_P] / ti.max(self.scalars[N_UNKNOWN], 1.0)
+        for a in range(self.n):
+            if self.role[a] == UNKNOWN:
+                self.p[a] += shift
+
+    @ti.kernel
+    def fill_unknowns(self, value: float):
+        for a in range(self.n):
+            if self.role[a] == UNKNOWN:
+                self.p[a] = value
+
+    # -- iterations ---------------------------------------------------------------------------------------
+    @ti.kernel
+    def jacobi_iteration(self):
+        """r = b - A p (|r|^2 reduced), then p += omega r / A_aa."""
+        self.scalars[RR] = 0.0
+        for a in range(self.n):
+            if self.role[a] == UNKNOWN:
+                r = self.rhs[a] - self.apply(self.p, a)
+                self.res[a] = r
+                ti.atomic_add(self.scalars[RR], r * r)
+        for a in range(self.n):
+            if self.role[a] == UNKNOWN:
+                self.p[a] += self.omega * self.res[a] / self.diag[a]
+
+    @ti.kernel
+    def cg_start(self):
+        """r = b - A p, z = r / diag, d = z, q = A d (all zero outside the unknowns)."""
+        for s in ti.static((RR, RZ, PQ)):
+            self.scalars[s] = 0.0
+        for a in range(self.n):
+            r = 0.0
+            z = 0.0
+            if self.role[a] == UNKNOWN:
+                r = self.rhs[a] - self.apply(self.p, a)
+                z = r / self.diag[a]
+                ti.atomic_add(self.scalars[RR], r * r)
+                ti.atomic_add(self.scalars[RZ], r * z)
+            self.res[a] = r
+            self.z[a] = z
+            self.d[a] = z
+            self.q[a] = 0.0
+        for a in range(self.n):
+            if self.role[a] == UNKNOWN:
+                q = self.apply(self.z, a)
+                self.q[a] = q
+                ti.atomic_add(self.scalars[PQ], self.d[a] * q)
+
+    @ti.kernel
+    def cg_iteration(self):
+        """One Jacobi-preconditioned CG iteration in two parallel passes (q = A d kept by the recurrence
+        A d_new = A z + beta A d, so each iteration has one product with A):
+
+            alpha = rz / d.q;  p += alpha d;  r -= alpha q;  z = r / diag      (|r|^2, r.z reduced)
+            beta = rz_new / rz;  d = z + beta d;  q = A z + beta q             (d.q reduced)
+        """
+        alpha = 0.0
+        if self.scalars[PQ] > 0.0:
+            alpha = self.scalars[RZ] / self.scalars[PQ]
+        self.scalars[RR] = 0.0
+        self.scalars[RZ_NEW] = 0.0
+        for a in range(self.n):
+            if self.role[a] == UNKNOWN:
+                self.p[a] += alpha * self.d[a]
+                r = self.res[a] - alpha * self.q[a]
+                z = r / self.diag[a]
+                self.res[a] = r
+                self.z[a] = z
+                ti.atomic_add(self.scalars[RR], r * r)
+                ti.atomic_add(self.scalars[RZ_NEW], r * z)
+        beta = 0.0
+        if self.scalars[RZ] > 0.0:
+            beta = self.scalars[RZ_NEW] / self.scalars[RZ]
+        self.scalars[RZ] = self.scalars[RZ_NEW]
+        self.scalars[PQ] = 0.0
+        for a in range(self.n):
+            if self.role[a] == UNKNOWN:
+                d = self.z[a] + beta * self.d[a]
+                q = self.apply(self.z, a) + beta * self.q[a]
+                self.d[a] = d
+                self.q[a] = q
+                ti.atomic_add(self.scalars[PQ], d * q)
+
+    def solve(self, neumann_level: float = 0.0) -> tuple[int, float, bool]:
+        """Iterate until |b - A p| <= tolerance |b| or max_iterations.
+
+        Returns (iterations, relative residual, pure_neumann). Without any Dirichlet particle the right
+        side is projected to zero mean and the result shifted to mean `neumann_level`. For Jacobi the
+        residual is that of the iterate before the last update (one kernel computes both).
+        """
+        s = self.scalars.to_numpy()
+        n_unknown, pure_neumann = s[N_UNKNOWN], s[N_DIRICHLET] == 0
+        if n_unknown == 0:
+            return 0, 0.0, False
+        if pure_neumann:
+            self.remove_rhs_mean()
+        norm_b = math.sqrt(float(self.scalars[BB]))
+        if norm_b == 0.0:  # the solution is p = 0 (or the level)
+            self.fill_unknowns(neumann_level if pure_neumann else 0.0)
+            return 0, 0.0, pure_neumann
+        step = self.cg_iteration if self.solver == "cg" else self.jacobi_iteration
+        check = CHECK_EVERY[self.solver]
+        iterations = 0
+        residual = math.inf
+        if self.solver == "cg":
+            self.cg_start()
+            residual = math.sqrt(float(self.scalars[RR])) / norm_b
+        while residual > self.tolerance and iterations < self.max_iterations:
+            for _ in range(min(check, self.max_iterations - iterations)):
+                step()
+                iterations += 1
+            residual = math.sqrt(float(self.scalars[RR])) / norm_b
+        if pure_neumann:
+            self.set_mean(neumann_level)
+        return iterations, residual, pure_neumann

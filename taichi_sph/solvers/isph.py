@@ -1,0 +1,398 @@
+"""Incompressible SPH by projection: predictor -> pressure Poisson equation -> pressure correction -> shift.
+
+One step, every operator at the positions x^n (Cummins & Rudman 1999 projection, Shao & Lo 2003 Laplacian):
+
+1. neighbours; rho_a = sum_b m_b W_ab / (lattice kernel sum), so that a full lattice has rho0 exactly.
+   Free surface: kernel sum below `isph.free_surface_threshold` x the lattice sum, or below 0.97 with
+   no fluid neighbour in the 45-degree cone around the outward normal (a contact line, where the wall
+   fills the kernel sum). These particles get the Dirichlet pressure p = (dx/2) |rho0 (g - a)| (the
+   pressure half a spacing below the surface, 0 in free fall) and are not unknowns.
+2. predictor: v* = v + dt (g + viscous), no pressure (viscous terms as in WCSPH).
+3. PPE  -sum_b K_ab (p_a - p_b) = s_a  at every other fluid particle (physics/ppe.py):
+   - fluid neighbours are unknowns, or Dirichlet values moved to the right side;
+   - wall neighbours: p_w = p_a + rho0 g . (x_w - x_a) pair by pair, a Neumann condition that adds no
+     matrix entry (walls are not unknowns) and is exact for a fluid at rest; in div(v*) a wall moves
+     with v_w + dt g, so only motion relative to the wall is a source;
+   - the part of a support cut off by the free surface: pressure continued linearly with the gradient
+     rho0 (g - a) of the last step, again only a right-side term;
+   - rows scaled by V_a = m_a / rho0: symmetric positive definite.
+   Source (`isph.source`): div(v*) / dt, (rho0 - rho*) / (rho0 dt^2) or their blend; next to the free
+   surface the density is floored at rho0 (a truncated kernel sum is not expansion).
+   No free-surface particle at all (closed or periodic box): the right side is projected to zero mean
+   and the pressure shifted to mean `fluid.background_pressure`.
+4. Matrix-free weighted Jacobi or Jacobi-preconditioned CG (physics/ppe.py), warm-started from the
+   previous pressure.
+5. Walls get the Adami-extrapolated new pressure (>= 0); v = v* - dt grad p / rho0; x += dt v, with the
+   kernel-gradient-corrected difference form grad p_a = (M_a^T)^-1 sum_b V_b (p_b - p_a) grad_a W_ab:
+   exact for a linear pressure at a surface or a corner, independent of the pressure level. The
+   symmetric (momentum-conserving) form was tried first: at a resting surface it is 3.8% out of
+   balance, and the tank at rest paired particles and blew up within 10 steps of dt = 0.016 s.
+6. Particle shifting (on by default for ISPH).
+
+Divergence and Laplacian are divided by their value on the initial lattice for a linear (quadratic)
+field: the Wendland C2 gradient sum is 0.974, not 1, at h = 1.3 dx.
+"""
+
+# No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
+import math
+
+import numpy as np
+import taichi as ti
+
+from ..config import Config
+from ..geometry import FLUID, WALL, ParticleArrays, lattice_kernel_sum
+from ..physics.momentum import monaghan_viscosity, morris_laminar_viscosity
+from ..physics.ppe import (BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE,
+                           free_surface_pressure, neumann_wall_pressure_difference, ppe_source,
+                           shao_lo_laplacian_weight, velocity_divergence_term)
+from ..physics.walls import adami_wall_pressure, adami_wall_velocity
+from .base import SolverBase
+from .shifting import ParticleShifting
+
+# source weight beta in s = (1 - beta) s_divergence + beta s_density, per `isph.source`
+SOURCE_WEIGHT = {"divergence": lambda blend: 0.0, "density_invariance": lambda blend: 1.0, "blend": lambda blend: blend}
+# below this kernel sum / lattice sum a particle with no fluid neighbour within 45 degrees of its outward
+# normal is at the free surface too (Marrone et al. 2010 style scan, as a cone; walls above a contact
+# line fill the kernel sum but are not fluid); below it the reported density is floored at rho0
+SURFACE_CANDIDATE = 0.97
+SURFACE_CONE_COS = math.cos(math.pi / 4)
+# kernel-gradient correction only where the moment matrix is well conditioned (about 1 on a lattice)
+MIN_MOMENT_DETERMINANT = 0.1
+
+
+def _lattice_offsets(cfg: Config) -> np.ndarray:
+    """Distances |x_a - x_b| > 0 from one site of a full lattice of spacing dx to the others in reach."""
+    dx = cfg.particles.dx
+    n = int(math.ceil(cfg.particles.hdx * 3.0)) + 1
+    offs = np.arange(-n, n + 1) * dx
+    grids = np.meshgrid(*([offs] * cfg.dim), indexing="ij")
+    r = np.sqrt(sum(g.ravel() ** 2 for g in grids))
+    return r[r > 0]
+
+
+def lattice_gradient_sum(cfg: Config, dw_dr, eta2: float = 0.0) -> float:
+    """(1/dim) sum_b V_b (-r dW/dr) r^2 / (r^2 + eta^2) over a full lattice.
+
+    With eta2 = 0: the SPH gradient (and divergence) of a linear field over the exact one,
+    sum_b V_b (x_b - x_a) (x) grad_a W_ab = this x identity. With eta2: the same ratio for the
+    Brookshaw / Shao & Lo Laplacian of a quadratic field.
+    """
+    r = _lattice_offsets(cfg)
+    return float(np.sum(-r * dw_dr(r) * r * r / (r * r + eta2)) * cfg.particles.dx ** cfg.dim / cfg.dim)
+
+
+@ti.data_oriented
+class ISPHSolver(SolverBase):
+    """Projection ISPH: Shao & Lo Laplacian, matrix-free Jacobi / PCG, free-surface Dirichlet, Neumann walls."""
+
+    name = "isph"
+    wall_wall_pairs = False  # no ISPH term couples two wall particles
+
+    def __init__(self, cfg: Config, arrays: ParticleArrays) -> None:
+        super().__init__(cfg, arrays)
+        P = self.particles
+        ic = cfg.isph
+        self.source = ic.source
+        self.beta = SOURCE_WEIGHT[ic.source](ic.blend)
+        self.surface_threshold = ic.free_surface_threshold
+        self.surface_depth = 0.5 * self.dx
+        self.lattice_sum = lattice_kernel_sum(cfg, self.kernel.w_np)
+        self.grad_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np)
+        self.lap_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np, self.eta2)
+        self.g_norm = float(np.linalg.norm(cfg.gravity_vector))
+        av = cfg.wcsph.artificial_viscosity  # Features compiles it in for either solver, as in WCSPH
+        self.alpha, self.beta_av = av.alpha, av.beta
+        self.wall_mass = self.rho0 * self.dx ** self.dim
+        P.make_persistent(P.acc)  # the free-surface pressure uses the last acceleration
+        self.rho_summation = P.add_scalar()    # rho_a before any floor: the density-invariance source
+        self.grad_p_estimate = P.add_vector()  # rho0 (g - a) of the last step: grad p near the surface
+        self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver, ic.ppe.tolerance,
+                                 ic.ppe.max_iterations, ic.ppe.omega)
+        self.shifting = ParticleShifting(self, cfg.shifting.coefficient) if self.features.shifting else None
+        self.iterations: list[int] = []
+        self.residuals: list[float] = []
+        self.pure_neumann_steps = 0
+
+    @ti.func
+    def body_acc(self):
+        g = ti.Vector.zero(float, self.dim)
+        if ti.static(self.features.gravity):
+            g = self.gravity[None]
+        return g
+
+    # -- 1. density and free surface ------------------------------------------------------
+    @ti.kernel
+    def detect_free_surface(self):
+        """Summation density, free-surface role and Dirichlet pressure (see the module doc)."""
+        P = self.particles
+        NS = self.nsearch
+        E = self.ppe
+        E.scalars[N_DIRICHLET] = 0.0
+        for a in range(self.n):
+            role = NOT_IN_PPE
+            if P.kind[a] == FLUID:
+                xa = P.x[a]
+                rho = P.mass[a] * self.kernel.w0
+                grad_c = ti.Vector.zero(float, self.dim)
+                for k in range(NS.count[a]):
+                    b = NS.neighbors[a, k]
+                    r_ab = NS.pair_vector(xa, P.x[b])
+                    r = r_ab.norm()
+                    rho += P.mass[b] * self.kernel.w(r)
+                    grad_c += P.mass[b] / self.rho0 * self.kernel.grad_w(r_ab, r)
+                rho /= self.lattice_sum
+                self.rho_summation[a] = rho
+                surface = rho < self.surface_threshold * self.rho0
+                if not surface and rho < SURFACE_CANDIDATE * self.rho0:
+                    outward = -grad_c.normalized(1e-12)
+                    surface = True
+                    for k in range(NS.count[a]):
+                        b = NS.neighbors[a, k]
+                        r_ba = -NS.pair_vector(xa, P.x[b])
+                        dist = r_ba.norm()
+                        if P.kind[b] == FLUID and dist < self.support and r_ba.dot(outward) > SURFACE_CONE_COS * dist:
+                            surface = False
+                self.grad_p_estimate[a] = self.rho0 * (self.body_acc() - P.acc[a])
+                role = UNKNOWN
+                if surface:
+                    role = DIRICHLET
+                    P.p[a] = free_surface_pressure(self.rho0, self.surface_depth, grad_c, self.body_acc(), P.acc[a])
+                    ti.atomic_add(E.scalars[N_DIRICHLET], 1.0)
+                if rho < SURFACE_CANDIDATE * self.rho0:
+                    rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
+                P.rho[a] = rho
+            E.role[a] = role
+
+    # -- 2. predictor -----------------------------------------------------------------------
+    @ti.kernel
+    def predict_velocity(self, dt: float):
+        """a* = g + viscous (Morris laminar, Monaghan artificial); v* = v + dt a*. acc keeps a* until the
+        correction adds the pressure part. Walls enter as in WCSPH: ghost velocity when no-slip."""
+        P = self.particles
+        NS = self.nsearch
+        for a in range(self.n):
+            if P.kind[a] == FLUID:
+                acc = self.body_acc()
+                if ti.static(self.features.laminar_viscosity or self.features.artificial_viscosity):
+                    xa, va = P.x[a], P.v[a]
+                    for k in range(NS.count[a]):
+                        b = NS.neighbors[a, k]
+                        r_ab = NS.pair_vector(xa, P.x[b])
+                        r2 = r_ab.dot(r_ab)
+                        grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
+                        is_fluid_b = P.kind[b] == FLUID
+                        v_ab = va - P.v[b]
+                        if ti.static(self.features.no_slip):
+                            if not is_fluid_b:
+                                v_ab = va - self.v_ghost[b]
+                        if ti.static(self.features.artificial_viscosity):
+                            acc += monaghan_viscosity(P.mass[b], v_ab, r_ab, r2, self.h, self.c0, self.rho0, self.alpha,
+                                                      self.beta_av, grad_w)
+                        if ti.static(self.features.laminar_viscosity):
+                            if ti.static(self.features.no_slip) or is_fluid_b:
+                                acc += morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,
+                                                                self.eta2, grad_w)
+                P.acc[a] = acc
+        for a in range(self.n):
+            if P.kind[a] == FLUID:
+                P.v[a] += dt * P.acc[a]
+
+    # -- 3. the linear system -----------------------------------------------------------------
+    @ti.kernel
+    def assemble_ppe(self, dt: float, dt_relax: float):
+        """Coefficients, diagonal and right side of the unknown particles' rows (see the module doc)."""
+        P = self.particles
+        NS = self.nsearch
+        E = self.ppe
+        for s in ti.static((BB, SUM_B, N_UNKNOWN)):
+            E.scalars[s] = 0.0
+        for a in range(self.n):
+            if E.role[a] == UNKNOWN:
+                xa, va = P.x[a], P.v[a]
+                vol_a = P.mass[a] / self.rho0
+                body = self.body_acc()
+                div_v = 0.0
+                diag = 0.0
+                diag_dirichlet = 0.0
+                rhs = 0.0
+                moment = ti.Vector.zero(float, self.dim)
+                near_surface = False
+                for k in range(NS.count[a]):
+                    b = NS.neighbors[a, k]
+                    r_ab = NS.pair_vector(xa, P.x[b])
+                    r2 = r_ab.dot(r_ab)
+                    grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
+                    k_ab = self.lap_norm * vol_a * shao_lo_laplacian_weight(P.mass[b], self.rho0, self.rho0, r_ab, r2,
+                                                                            self.eta2, grad_w)
+                    c_ab = 0.0
+                    v_b = P.v[b]
+                    if P.kind[b] == WALL:
+                        v_b += dt * body
+                        rhs -= k_ab * neumann_wall_pressure_difference(self.rho0, body, r_ab)
+                    elif E.role[b] == UNKNOWN:
+                        c_ab = k_ab
+                        diag += k_ab
+                    else:
+                        near_surface = True
+                        diag += k_ab
+                        diag_dirichlet += k_ab
+                        rhs += k_ab * P.p[b]
+                    E.coeff[a, k] = c_ab
+                    moment += k_ab * r_ab
+                    div_v += velocity_divergence_term(P.mass[b] / self.rho0, va - v_b, grad_w)
+                div_v *= self.grad_norm
+                rho = self.rho_summation[a]
+                if near_surface:
+                    # sum over the cut-off support of K (p_a - p_m), p continued linearly with gradient
+                    # rho0 (g - a): rho0 (g - a) . sum_missing K r_am = -rho0 (g - a) . sum_present K r_ab
+                    # (a full lattice has no first moment)
+                    rhs += self.grad_p_estimate[a].dot(moment)
+                    rho = ti.max(rho, self.rho0)
+                    P.rho[a] = rho
+                rhs -= vol_a * ppe_source(div_v, rho, self.rho0, dt, dt_relax, self.beta)
+                if diag > 0.0:
+                    E.diag[a] = diag
+                    E.diag_dirichlet[a] = diag_dirichlet
+                    E.rhs[a] = rhs
+                    ti.atomic_add(E.scalars[BB], rhs * rhs)
+                    ti.atomic_add(E.scalars[SUM_B], rhs)
+                    ti.atomic_add(E.scalars[N_UNKNOWN], 1.0)
+                else:  # no fluid neighbour, so no other row refers to it: keep its pressure
+                    E.role[a] = DIRICHLET
+
+    # -- 5. walls and correction ---------------------------------------------------------------
+    @ti.kernel
+    def wall_pressure(self):
+        """Adami et al. (2012) p_w = sum_f (p_f + rho0 (g - a_w) . r_wf) W_wf / sum_f W_wf, floored at 0 (a
+        wall above a free surface is dry and must not pull fluid); walls are ghost fluid at rest density,
+        rho_w = rho0 and m_w = rho0 dx^dim; no-slip ghost velocity as in WCSPH."""
+        P = self.particles
+        NS = self.nsearch
+        for a in range(self.n):
+            if P.kind[a] == WALL:
+                xa = P.x[a]
+                sum_w = 0.0
+                sum_pw = 0.0
+                sum_rw = ti.Vector.zero(float, self.dim)
+                sum_vw = ti.Vector.zero(float, self.dim)
+                for k in range(NS.count[a]):
+                    b = NS.neighbors[a, k]
+                    if P.kind[b] == FLUID:
+                        r_ab = NS.pair_vector(xa, P.x[b])
+                        w = self.kernel.w(r_ab.norm())
+                        sum_w += w
+                        sum_pw += P.p[b] * w
+                        sum_rw += self.rho0 * r_ab * w
+                        if ti.static(self.features.no_slip):
+                            sum_vw += P.v[b] * w
+                p = self.p_background
+                if sum_w > 0.0:
+                    p = ti.max(adami_wall_pressure(sum_pw, sum_rw, sum_w, self.body_acc()), 0.0)
+                P.p[a] = p
+                P.rho[a] = self.rho0
+                P.mass[a] = self.wall_mass
+                if ti.static(self.features.no_slip):
+                    self.v_ghost[a] = adami_wall_velocity(P.v[a], sum_vw, sum_w)
+
+    @ti.kernel
+    def correct_and_move(self, dt: float):
+        """v = v* - dt grad p / rho0 with the corrected gradient (Bonet & Lok 1999)
+        grad p_a = (M_a^T)^-1 sum_b V_b (p_b - p_a) grad_a W_ab, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab,
+        over fluid and wetted walls (p_w > 0; a dry wall is air); then x += dt v. Where M_a is near
+        singular (a few splash particles) the lattice factor replaces it."""
+        P = self.particles
+        NS = self.nsearch
+        for a in range(self.n):
+            if P.kind[a] == FLUID:
+                xa, p_a = P.x[a], P.p[a]
+                sum_dp = ti.Vector.zero(float, self.dim)
+                moment = ti.Matrix.zero(float, self.dim, self.dim)
+                for k in range(NS.count[a]):
+                    b = NS.neighbors[a, k]
+                    if P.kind[b] == FLUID or P.p[b] > 0.0:
+                        r_ab = NS.pair_vector(xa, P.x[b])
+                        grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
+                        vol_b = P.mass[b] / self.rho0
+                        sum_dp += vol_b * (P.p[b] - p_a) * grad_w
+                        moment -= vol_b * r_ab.outer_product(grad_w)
+                grad_p = self.grad_norm * sum_dp
+                if ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT:
+                    grad_p = moment.transpose().inverse() @ sum_dp
+                acc = -grad_p / self.rho0
+                P.acc[a] += acc
+                P.v[a] += dt * acc
+        for a in range(self.n):
+            if P.kind[a] == FLUID:
+                P.x[a] += dt * P.v[a]
+                if ti.static(self.features.reflecting):
+                    self.reflect(a)
+
+    # -- one step -------------------------------------------------------------------------------------
+    def prepare(self) -> None:
+        self.rebuild_neighbors()
+        self.detect_free_surface()
+        if self.features.walls:
+            self.wall_pressure()
+
+    def step(self) -> float:
+        """Advance one step; returns the dt used."""
+        self.update_body_force()
+        s = self.read_stats()
+        # at rest |a| ~ 0 and |v| ~ 0: gravity still bounds the step (sqrt(h / g)); dt_free is the step
+        # before the run loop shortens it to land on t_end
+        cap, self.dt_cap = self.dt_cap, math.inf
+        dt_free = self.choose_dt(s["max_speed"], max(s["max_acc"], self.g_norm), 0.0)
+        self.dt_cap = cap
+        dt = min(dt_free, cap)
+        if self.step_count > 0:
+            self.rebuild_neighbors()
+            self.detect_free_surface()
+        if self.features.no_slip and (self.features.laminar_viscosity or self.features.artificial_viscosity):
+            self.wall_pressure()  # ghost velocities for the viscous terms
+        self.predict_velocity(dt)
+        self.assemble_ppe(dt, dt_free)
+        iterations, residual, pure_neumann = self.ppe.solve(self.p_background)
+        self.iterations.append(iterations)
+        self.residuals.append(residual)
+        self.pure_neumann_steps += int(pure_neumann)
+        if self.features.walls:
+            self.wall_pressure()
+        self.correct_and_move(dt)
+        if self.shifting is not None:
+            self.shifting.apply(dt)
+        self.t += dt
+        self.step_count += 1
+        return dt
+
+    # -- reporting ------------------------------------------------------------------------------------
+    def nonconverged_steps(self) -> list[int]:
+        """Indices of the steps that stopped at max_iterations above the tolerance."""
+        return [i for i, (n, r) in enumerate(zip(self.iterations, self.residuals))
+                if n >= self.ppe.max_iterations and r > self.ppe.tolerance]
+
+    def extra_summary(self) -> dict:
+        """`ppe` (iterations, residuals, settings) and `ppe_warnings` (steps that hit max_iterations)."""
+        its = np.asarray(self.iterations, dtype=float)
+        bad = self.nonconverged_steps()
+        ppe = {"solver": self.ppe.solver,
+               "iterations_mean": float(its.mean()) if its.size else 0.0,
+               "iterations_max": int(its.max()) if its.size else 0,
+               "residual_max": float(max(self.residuals)) if self.residuals else 0.0,
+               "nonconverged_steps": len(bad),
+               "tolerance": self.ppe.tolerance, "max_iterations": self.ppe.max_iterations,
+               "source": self.source if self.source != "blend" else f"blend({self.beta:g})",
+               "pure_neumann_steps": self.pure_neumann_steps,
+               "walls": "Neumann (pairwise hydrostatic) in the PPE, Adami pressure >= 0 in the gradient",
+               "pressure_gradient": "kernel-gradient-corrected difference form"}
+        warnings = []
+        if bad:
+            worst = max(self.residuals[i] for i in bad)
+            warnings.append(f"PPE ({self.ppe.solver}) stopped at max_iterations = {self.ppe.max_iterations} above the "
+                            f"tolerance {self.ppe.tolerance:g} in {len(bad)} of {len(self.iterations)} steps (first at "
+                            f"step {bad[0] + 1}, relative residual up to {worst:.3g})")
+        return {"ppe": ppe, "ppe_warnings": warnings}
+
+    def extra_timeseries(self) -> dict:
+        """Iterations and relative residual of the last PPE solve."""
+        return {"ppe_iterations": self.iterations[-1] if self.iterations else 0,
+                "ppe_residual": self.residuals[-1] if self.residuals else 0.0}

@@ -1,0 +1,189 @@
+"""ISPH: the PPE operator (symmetry, definiteness), its solvers on a manufactured problem, short runs."""
+
+import math
+
+import numpy as np
+import pytest
+import taichi as ti
+
+from taichi_sph.config import config_from_dict
+from taichi_sph.geometry import build_particles
+from taichi_sph.kernels import make_kernel
+from taichi_sph.physics.ppe import BB, DIRICHLET, UNKNOWN
+from taichi_sph.simulation import Simulation
+from taichi_sph.solvers.isph import ISPHSolver, lattice_gradient_sum
+
+
+def tank_cfg(dx=0.05, **over):
+    """A 0.5 m x 0.5 m water column at rest in a 4-layer wall box, ISPH, h = 2 dx, starting from p = 0."""
+    data = {
+        "name": "isph_tank", "dim": 2, "solver": "isph", "gravity": [0.0, -9.81],
+        "domain": {"lo": [-0.25, -0.25], "hi": [0.75, 0.9]},
+        "particles": {"dx": dx, "hdx": 2.0, "kernel": "wendland_c2"},
+        "fluid": {"reference_speed": math.sqrt(9.81 * 0.5)},
+        "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.5, 0.5]},
+                   {"type": "wall_box", "lo": [0.0, 0.0], "hi": [0.5, 0.6], "layers": 4}],
+        "walls": {"slip": "free_slip"},
+        "time": {"t_end": 0.5}, "output": {"every": 0.1},
+        "metrics": [{"type": "hydrostatic", "depth": 0.5}],
+    }
+    for key, value in over.items():
+        data[key] = {**data[key], **value} if isinstance(value, dict) and key in data else value
+    return config_from_dict(data)
+
+
+def assembled(cfg, jitter=0.0, seed=1):
+    """A solver with the PPE assembled for one step (positions optionally jittered by `jitter` dx)."""
+    arrays = build_particles(cfg)
+    if jitter:
+        rng = np.random.default_rng(seed)
+        fluid = arrays.kind == 0
+        arrays.x[fluid] += rng.uniform(-jitter, jitter, arrays.x[fluid].shape) * cfg.particles.dx
+    solver = ISPHSolver(cfg, arrays)
+    solver.prepare()
+    solver.predict_velocity(0.005)
+    solver.assemble_ppe(0.005, 0.005)
+    return solver
+
+
+@ti.kernel
+def _apply(E: ti.template(), x: ti.template(), out: ti.template()):
+    for a in range(E.n):
+        out[a] = 0.0
+        if E.role[a] == UNKNOWN:
+            out[a] = E.apply(x, a)
+
+
+def apply_matrix(solver, x: np.ndarray) -> np.ndarray:
+    """A x through the solver's own matrix-free product (x zero outside the unknowns)."""
+    xf = ti.field(float, solver.n)
+    out = ti.field(float, solver.n)
+    xf.from_numpy(x.astype(np.float32))
+    _apply(solver.ppe, xf, out)
+    return out.to_numpy().astype(np.float64)
+
+
+def random_on_unknowns(solver, rng) -> np.ndarray:
+    unknown = solver.ppe.role.to_numpy() == UNKNOWN
+    return np.where(unknown, rng.standard_normal(solver.n), 0.0)
+
+
+def manufactured(solver, tolerance, max_iterations, method):
+    """Solve A p = A p_exact from p = 0 with `method`; returns (iterations, residual, relative error)."""
+    E = solver.ppe
+    unknown = E.role.to_numpy() == UNKNOWN
+    x = solver.particles.x.to_numpy()
+    p_exact = np.where(unknown, 1000.0 * 9.81 * (0.5 - x[:, 1]) + 300.0 * np.sin(7.0 * x[:, 0]), 0.0)
+    b = apply_matrix(solver, p_exact)
+    E.rhs.from_numpy(b.astype(np.float32))
+    E.scalars[BB] = float(b @ b)
+    p0 = solver.particles.p.to_numpy()
+    solver.particles.p.from_numpy(np.where(unknown, 0.0, p0).astype(np.float32))
+    E.solver, E.tolerance, E.max_iterations = method, tolerance, max_iterations
+    iterations, residual, pure_neumann = E.solve()
+    assert not pure_neumann
+    p = solver.particles.p.to_numpy()[unknown]
+    return iterations, residual, np.linalg.norm(p - p_exact[unknown]) / np.linalg.norm(p_exact[unknown])
+
+
+def test_lattice_gradient_sum_is_the_known_kernel_deficit():
+    """The Wendland C2 gradient sum on a lattice: 0.974 at h = 1.3 dx, within 0.2% of 1 at h = 2 dx."""
+    for hdx, expected, tol in ((1.3, 0.974, 0.001), (2.0, 1.0, 0.002)):
+        cfg = tank_cfg(dx=0.02, particles={"hdx": hdx})
+        dw_dr = make_kernel("wendland_c2", 2, cfg.h).dw_dr_np
+        assert lattice_gradient_sum(cfg, dw_dr) == pytest.approx(expected, abs=tol)
+
+
+def test_ppe_operator_is_symmetric_and_positive_definite():
+    """x . A y == y . A x on random vectors of a jittered tank (pair weights all different), x . A x > 0."""
+    solver = assembled(tank_cfg(), jitter=0.2)
+    rng = np.random.default_rng(0)
+    roles = solver.ppe.role.to_numpy()
+    assert (roles == DIRICHLET).sum() > 0 and (roles == UNKNOWN).sum() > 50
+    for _ in range(3):
+        x, y = random_on_unknowns(solver, rng), random_on_unknowns(solver, rng)
+        ax, ay = apply_matrix(solver, x), apply_matrix(solver, y)
+        scale = np.linalg.norm(x) * np.linalg.norm(ay)
+        assert abs(x @ ay - y @ ax) < 1e-4 * scale
+        assert x @ ax > 0.0
+
+
+def test_cg_reaches_tolerance_on_a_manufactured_problem():
+    """p_exact = hydrostatic + a sine, b = A p_exact, CG from p = 0: relative residual below the
+    tolerance, and p within 1e-3 of p_exact (f32; the condition number here is ~1e3)."""
+    solver = assembled(tank_cfg(), jitter=0.1)
+    iterations, residual, error = manufactured(solver, 1e-5, 500, "cg")
+    assert residual <= 1e-5
+    assert 0 < iterations < 200
+    assert error < 1e-3
+
+
+def test_jacobi_reaches_the_same_solution_with_more_iterations():
+    solver = assembled(tank_cfg(), jitter=0.1)
+    cg_iterations, _, cg_error = manufactured(solver, 1e-5, 500, "cg")
+    solver = assembled(tank_cfg(), jitter=0.1)
+    jacobi_iterations, residual, jacobi_error = manufactured(solver, 1e-5, 20000, "jacobi")
+    assert residual <= 1e-5
+    assert jacobi_error < 1e-3 and cg_error < 1e-3
+    assert jacobi_iterations > 3 * cg_iterations
+
+
+def test_closed_box_pins_the_pressure_level():
+    """Fluid filling a closed box has no free surface: the right side is projected to zero mean, CG
+    converges and the mean pressure is the background pressure."""
+    cfg = tank_cfg(bodies=[{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.5, 0.5]},
+                           {"type": "wall_box", "lo": [0.0, 0.0], "hi": [0.5, 0.5], "layers": 4, "open_top": False}],
+                   fluid={"background_pressure": 1000.0})
+    solver = ISPHSolver(cfg, build_particles(cfg))
+    solver.prepare()
+    solver.step()
+    assert solver.pure_neumann_steps == 1
+    assert solver.residuals[-1] <= cfg.isph.ppe.tolerance
+    unknown = solver.ppe.role.to_numpy() == UNKNOWN
+    p = solver.particles.p.to_numpy()[unknown]
+    assert p.mean() == pytest.approx(1000.0, rel=1e-3)
+    # and the gravity still shows: the pressure rises with depth by ~ rho0 g H
+    y = solver.particles.x.to_numpy()[unknown, 1]
+    slope = np.polyfit(y, p, 1)[0]
+    assert slope == pytest.approx(-1000.0 * 9.81, rel=0.02)
+
+
+def test_hydrostatic_tank_at_rest():
+    """10 x 10 particles, p = 0 at the start, 0.5 s (20 steps of the gravity-limited dt). The first PPE
+    builds the hydrostatic field; measured 3e-6 relative L2 error and 5e-6 sqrt(gH) speed at the end.
+    0.5% (the issue's bound) fails for a Dirichlet p = 0 at the surface layer (1.7% on the bundled
+    tank), for the uncorrected h = 1.3 dx lattice gradient (2.6%) and for any wrong wall term."""
+    res = Simulation(tank_cfg(), None, render=False, quiet=True).run()
+    s = res.summary
+    assert s["status"] == "ok"
+    assert s["errors"]["pressure_l2_rel"] < 0.005
+    assert s["errors"]["max_speed_over_sqrt_gH"] < 0.005
+    assert s["conservation"]["wall_crossings"] == 0
+    assert s["ppe"]["solver"] == "cg" and s["ppe"]["nonconverged_steps"] == 0
+    assert 0 < s["ppe"]["iterations_max"] and s["ppe"]["residual_max"] <= 1e-4
+    assert s["dt_mean"] > 0.01  # set by gravity, sqrt(h / g), not by a sound speed
+
+
+def test_jacobi_and_cg_agree_on_the_tank():
+    """Both solvers from p = 0: the same end pressure within 0.5% of rho0 g H; the first solve takes CG
+    14 iterations and Jacobi 770 (measured), asserted as 'several times fewer'."""
+    states, worst = {}, {}
+    for method in ("cg", "jacobi"):
+        res = Simulation(tank_cfg(isph={"ppe": {"solver": method}}, time={"t_end": 0.2}), None, render=False,
+                         quiet=True).run()
+        s = res.summary
+        assert s["status"] == "ok" and s["ppe"]["solver"] == method and s["ppe"]["nonconverged_steps"] == 0
+        worst[method] = s["ppe"]["iterations_max"]
+        f = res.final_state["kind"] == 0
+        order = np.argsort(res.final_state["id"][f])
+        states[method] = res.final_state["p"][f][order]
+    assert np.abs(states["cg"] - states["jacobi"]).max() < 0.005 * 1000.0 * 9.81 * 0.5
+    assert worst["jacobi"] > 5 * worst["cg"]
+
+
+def test_max_iterations_is_a_warning():
+    res = Simulation(tank_cfg(isph={"ppe": {"max_iterations": 1, "tolerance": 1e-9}}, time={"t_end": 0.05}), None,
+                     render=False, quiet=True).run()
+    s = res.summary
+    assert s["ppe"]["nonconverged_steps"] == s["steps"]
+    assert s["ppe_warnings"] and "max_iterations = 1" in s["ppe_warnings"][0]
