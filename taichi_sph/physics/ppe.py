@@ -15,6 +15,7 @@ scalar of the iteration stays on the device and the host reads one residual norm
 
 # No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
 import math
+import time
 
 import taichi as ti
 
@@ -24,6 +25,8 @@ UNKNOWN, DIRICHLET, NOT_IN_PPE = 0, 1, 2
 RR, BB, RZ, RZ_NEW, PQ, N_UNKNOWN, N_DIRICHLET, SUM_B, SUM_P = range(9)
 # iterations between two read-backs of the residual norm
 CHECK_EVERY = {"cg": 2, "jacobi": 10}
+# the first block of CG iterations long enough to time both loop schedules (see `_choose_schedule`)
+SCHEDULE_PROBE = 8
 PPE_SOLVERS = tuple(CHECK_EVERY)
 
 
@@ -119,6 +122,9 @@ class MatrixFreePPE:
             self.d = ti.field(float, n)
             self.q = ti.field(float, n)
         self.scalars = ti.field(float, 9)
+        # CPU: whether the iteration loops run on one thread (see `_choose_schedule`); elsewhere parallel
+        self.serial: bool | None = None if ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64) else False
+        self.schedule_timings: dict[str, float] = {}
 
     @ti.func
     def apply(self, x: ti.template(), a):
@@ -161,14 +167,16 @@ class MatrixFreePPE:
 
     # -- iterations ---------------------------------------------------------------------------------------
     @ti.kernel
-    def jacobi_iteration(self):
+    def jacobi_iteration(self, serial: ti.template()):
         """r = b - A p (|r|^2 reduced), then p += omega r / A_aa."""
         self.scalars[RR] = 0.0
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
                 r = self.rhs[a] - self.apply(self.p, a)
                 self.res[a] = r
                 ti.atomic_add(self.scalars[RR], r * r)
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
                 self.p[a] += self.omega * self.res[a] / self.diag[a]
@@ -197,7 +205,7 @@ class MatrixFreePPE:
                 ti.atomic_add(self.scalars[PQ], self.d[a] * q)
 
     @ti.kernel
-    def cg_iteration(self):
+    def cg_iteration(self, serial: ti.template()):
         """One Jacobi-preconditioned CG iteration in two parallel passes (q = A d kept by the recurrence
         A d_new = A z + beta A d, so each iteration has one product with A):
 
@@ -209,6 +217,7 @@ class MatrixFreePPE:
             alpha = self.scalars[RZ] / self.scalars[PQ]
         self.scalars[RR] = 0.0
         self.scalars[RZ_NEW] = 0.0
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
                 self.p[a] += alpha * self.d[a]
@@ -223,6 +232,7 @@ class MatrixFreePPE:
             beta = self.scalars[RZ_NEW] / self.scalars[RZ]
         self.scalars[RZ] = self.scalars[RZ_NEW]
         self.scalars[PQ] = 0.0
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
                 d = self.z[a] + beta * self.d[a]
@@ -248,7 +258,7 @@ class MatrixFreePPE:
         if norm_b == 0.0:  # the solution is p = 0 (or the level)
             self.fill_unknowns(neumann_level if pure_neumann else 0.0)
             return 0, 0.0, pure_neumann
-        step = self.cg_iteration if self.solver == "cg" else self.jacobi_iteration
+        iterate = self.cg_iteration if self.solver == "cg" else self.jacobi_iteration
         check = CHECK_EVERY[self.solver]
         iterations = 0
         residual = math.inf
@@ -256,10 +266,30 @@ class MatrixFreePPE:
             self.cg_start()
             residual = math.sqrt(float(self.scalars[RR])) / norm_b
         while residual > self.tolerance and iterations < self.max_iterations:
-            for _ in range(min(check, self.max_iterations - iterations)):
-                step()
-                iterations += 1
+            todo = min(check if self.serial is not None else max(check, SCHEDULE_PROBE),
+                       self.max_iterations - iterations)
+            if self.serial is None and todo >= 4:
+                self._choose_schedule(iterate, todo)
+            else:
+                for _ in range(todo):
+                    iterate(bool(self.serial))
+            iterations += todo
             residual = math.sqrt(float(self.scalars[RR])) / norm_b
         if pure_neumann:
             self.set_mean(neumann_level)
         return iterations, residual, pure_neumann
+
+    def _choose_schedule(self, iterate, count: int) -> None:
+        """Run `count` (>= 4) iterations, half on one thread and half in parallel (each variant compiled by
+        its first call, which is not timed), and keep the faster: Taichi's CPU thread pool costs ~0.1 ms
+        per parallel loop on a busy 2-core machine, where one thread ran CG iterations 2.7x faster even
+        at 100k particles, while an idle many-core CPU wins in parallel."""
+        half = count // 2
+        for serial, n in ((True, half), (False, count - half)):
+            iterate(serial)
+            t0 = time.perf_counter()
+            for _ in range(n - 1):
+                iterate(serial)
+            ti.sync()
+            self.schedule_timings["serial" if serial else "parallel"] = (time.perf_counter() - t0) / max(n - 1, 1)
+        self.serial = self.schedule_timings["serial"] < self.schedule_timings["parallel"]

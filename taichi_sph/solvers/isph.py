@@ -5,8 +5,9 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
 1. neighbours; rho_a = sum_b m_b W_ab / (lattice kernel sum), so that a full lattice has rho0 exactly.
    Free surface: kernel sum below `isph.free_surface_threshold` x the lattice sum, or below 0.97 with
    no fluid neighbour in the 45-degree cone around the outward normal (a contact line, where the wall
-   fills the kernel sum). These particles get the Dirichlet pressure p = (dx/2) |rho0 (g - a)| (the
-   pressure half a spacing below the surface, 0 in free fall) and are not unknowns.
+   fills the kernel sum). These particles get the Dirichlet pressure p = p_b + (dx/2) |rho0 (g - a)| (the
+   pressure half a spacing below the surface, p_b in free fall; the ambient pressure p_b is
+   `fluid.background_pressure`, 0 in free-surface scenes) and are not unknowns.
 2. predictor: v* = v + dt (g + viscous), no pressure (viscous terms as in WCSPH).
 3. PPE  -sum_b K_ab (p_a - p_b) = s_a  at every other fluid particle (physics/ppe.py):
    - fluid neighbours are unknowns, or Dirichlet values moved to the right side;
@@ -21,8 +22,9 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
    No free-surface particle at all (closed or periodic box): the right side is projected to zero mean
    and the pressure shifted to mean `fluid.background_pressure`.
 4. Matrix-free weighted Jacobi or Jacobi-preconditioned CG (physics/ppe.py), warm-started from the
-   previous pressure.
-5. Walls get the Adami-extrapolated new pressure (>= 0); v = v* - dt grad p / rho0; x += dt v, with the
+   previous pressure; on the CPU the iteration loops run on one thread or in parallel, whichever the
+   first solve timed faster.
+5. Walls get the Adami-extrapolated new pressure (>= p_b); v = v* - dt grad p / rho0; x += dt v, with the
    kernel-gradient-corrected difference form grad p_a = (M_a^T)^-1 sum_b V_b (p_b - p_a) grad_a W_ab:
    exact for a linear pressure at a surface or a corner, independent of the pressure level. The
    symmetric (momentum-conserving) form was tried first: at a resting surface it is 3.8% out of
@@ -45,7 +47,6 @@ from ..physics.momentum import monaghan_viscosity, morris_laminar_viscosity
 from ..physics.ppe import (BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE,
                            free_surface_pressure, neumann_wall_pressure_difference, ppe_source,
                            shao_lo_laplacian_weight, velocity_divergence_term)
-from ..physics.walls import adami_wall_pressure, adami_wall_velocity
 from .base import SolverBase
 from .shifting import ParticleShifting
 
@@ -102,7 +103,7 @@ class ISPHSolver(SolverBase):
         self.g_norm = float(np.linalg.norm(cfg.gravity_vector))
         av = cfg.wcsph.artificial_viscosity  # Features compiles it in for either solver, as in WCSPH
         self.alpha, self.beta_av = av.alpha, av.beta
-        self.wall_mass = self.rho0 * self.dx ** self.dim
+        self.wall_mass = self.rho0 * self.lattice_volume
         P.make_persistent(P.acc)  # the free-surface pressure uses the last acceleration
         self.rho_summation = P.add_scalar()    # rho_a before any floor: the density-invariance source
         self.grad_p_estimate = P.add_vector()  # rho0 (g - a) of the last step: grad p near the surface
@@ -156,7 +157,8 @@ class ISPHSolver(SolverBase):
                 role = UNKNOWN
                 if surface:
                     role = DIRICHLET
-                    P.p[a] = free_surface_pressure(self.rho0, self.surface_depth, grad_c, self.body_acc(), P.acc[a])
+                    P.p[a] = self.p_background + free_surface_pressure(self.rho0, self.surface_depth, grad_c,
+                                                                       self.body_acc(), P.acc[a])
                     ti.atomic_add(E.scalars[N_DIRICHLET], 1.0)
                 if rho < SURFACE_CANDIDATE * self.rho0:
                     rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
@@ -262,43 +264,28 @@ class ISPHSolver(SolverBase):
 
     # -- 5. walls and correction ---------------------------------------------------------------
     @ti.kernel
-    def wall_pressure(self):
-        """Adami et al. (2012) p_w = sum_f (p_f + rho0 (g - a_w) . r_wf) W_wf / sum_f W_wf, floored at 0 (a
-        wall above a free surface is dry and must not pull fluid); walls are ghost fluid at rest density,
-        rho_w = rho0 and m_w = rho0 dx^dim; no-slip ghost velocity as in WCSPH."""
+    def incompressible_walls(self):
+        """After the shared Adami pass: walls are ghost fluid at rest density, rho_w = rho0 and
+        m_w = rho0 dx^dim (not the Tait density), and p_w >= p_b, the ambient pressure (a wall above a
+        free surface is dry and must not pull fluid)."""
         P = self.particles
-        NS = self.nsearch
         for a in range(self.n):
             if P.kind[a] == WALL:
-                xa = P.x[a]
-                sum_w = 0.0
-                sum_pw = 0.0
-                sum_rw = ti.Vector.zero(float, self.dim)
-                sum_vw = ti.Vector.zero(float, self.dim)
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    if P.kind[b] == FLUID:
-                        r_ab = NS.pair_vector(xa, P.x[b])
-                        w = self.kernel.w(r_ab.norm())
-                        sum_w += w
-                        sum_pw += P.p[b] * w
-                        sum_rw += self.rho0 * r_ab * w
-                        if ti.static(self.features.no_slip):
-                            sum_vw += P.v[b] * w
-                p = self.p_background
-                if sum_w > 0.0:
-                    p = ti.max(adami_wall_pressure(sum_pw, sum_rw, sum_w, self.body_acc()), 0.0)
-                P.p[a] = p
+                P.p[a] = ti.max(P.p[a], self.p_background)
                 P.rho[a] = self.rho0
                 P.mass[a] = self.wall_mass
-                if ti.static(self.features.no_slip):
-                    self.v_ghost[a] = adami_wall_velocity(P.v[a], sum_vw, sum_w)
+
+    def wall_pressure(self) -> None:
+        """Adami et al. (2012) p_w = sum_f (p_f + rho_f (g - a_w) . r_wf) W_wf / sum_f W_wf (and the no-slip
+        ghost velocity) from the current fluid pressure."""
+        self.adami_wall_extrapolation()
+        self.incompressible_walls()
 
     @ti.kernel
     def correct_and_move(self, dt: float):
         """v = v* - dt grad p / rho0 with the corrected gradient (Bonet & Lok 1999)
         grad p_a = (M_a^T)^-1 sum_b V_b (p_b - p_a) grad_a W_ab, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab,
-        over fluid and wetted walls (p_w > 0; a dry wall is air); then x += dt v. Where M_a is near
+        over fluid and wetted walls (p_w > p_b; a dry wall is air); then x += dt v. Where M_a is near
         singular (a few splash particles) the lattice factor replaces it."""
         P = self.particles
         NS = self.nsearch
@@ -309,7 +296,7 @@ class ISPHSolver(SolverBase):
                 moment = ti.Matrix.zero(float, self.dim, self.dim)
                 for k in range(NS.count[a]):
                     b = NS.neighbors[a, k]
-                    if P.kind[b] == FLUID or P.p[b] > 0.0:
+                    if P.kind[b] == FLUID or P.p[b] > self.p_background:
                         r_ab = NS.pair_vector(xa, P.x[b])
                         grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
                         vol_b = P.mass[b] / self.rho0
@@ -382,7 +369,8 @@ class ISPHSolver(SolverBase):
                "tolerance": self.ppe.tolerance, "max_iterations": self.ppe.max_iterations,
                "source": self.source if self.source != "blend" else f"blend({self.beta:g})",
                "pure_neumann_steps": self.pure_neumann_steps,
-               "walls": "Neumann (pairwise hydrostatic) in the PPE, Adami pressure >= 0 in the gradient",
+               "loop_schedule": {None: "undecided", True: "serial", False: "parallel"}[self.ppe.serial],
+               "walls": "Neumann (pairwise hydrostatic) in the PPE, Adami pressure >= p_b in the gradient",
                "pressure_gradient": "kernel-gradient-corrected difference form"}
         warnings = []
         if bad:
