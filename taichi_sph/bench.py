@@ -148,7 +148,8 @@ def cmd_bench(args) -> int:
             rows.append(row)
             print(f"\nPySPH dam_break_2d scene (dx 0.03, to t = 0.7 s): {res.get('n_fluid')} fluid + {res.get('n_wall')} wall, "
                   f"{res.get('steps')} steps, stepping {res.get('stepping_s', float('nan')):.2f} s "
-                  f"(PySPH 1.0b2 here: 9.6 s), {_fmt_rate(res.get('particle_steps_per_s'))} M particle-steps/s; "
+                  f"({'PySPH SISPH to T = 3 here: 15.9 s' if args.solver == 'isph' else 'PySPH 1.0b2 WCSPH here: 9.6 s'}), "
+                  f"{_fmt_rate(res.get('particle_steps_per_s'))} M particle-steps/s; "
                   f"cold start to first step {res.get('time_to_first_step_s', float('nan')):.1f} s, "
                   f"warm {warm.get('time_to_first_step_s', float('nan')):.1f} s")
     if args.json:

@@ -60,7 +60,9 @@ class Fluid:
     reference_speed: float | None = opt(None, "the largest flow speed the scene expects, e.g. sqrt(2 g H) for a dam break", unit="m/s", positive=True)
     gamma: float = opt(7.0, "Tait exponent, p = B((rho/rho0)^gamma - 1), B = c0^2 rho0 / gamma", positive=True)
     nu: float = opt(0.0, "kinematic viscosity (laminar, Morris et al. 1997 form); 0 compiles it out", unit="m^2/s", minimum=0.0)
-    background_pressure: float = opt(0.0, "constant added to the equation of state (p_b); keeps pressure positive in closed flows", unit="Pa", minimum=0.0)
+    background_pressure: float = opt(0.0, "constant added to the equation of state (p_b); keeps pressure positive in closed "
+                                          "flows; for ISPH the ambient pressure at a free surface and the mean pressure "
+                                          "in closed boxes", unit="Pa", minimum=0.0)
 
 
 @dataclass(frozen=True)
@@ -92,7 +94,8 @@ class DensityDiffusion:
 
 @dataclass(frozen=True)
 class ArtificialViscosity:
-    alpha: float = opt(0.0, "Monaghan (1992) linear coefficient; 0 (with beta 0) compiles it out", minimum=0.0)
+    alpha: float = opt(0.0, "Monaghan (1992) linear coefficient (used by ISPH's predictor too); 0 (with beta 0) "
+                            "compiles it out", minimum=0.0)
     beta: float = opt(0.0, "Monaghan quadratic coefficient", minimum=0.0)
 
 

@@ -267,7 +267,9 @@ class Simulation:
             "neighbours_max": solver.nsearch.max_count(), "neighbour_capacity": solver.max_neighbors,
             "warnings": self.warnings,
         }
-        summary.update(solver.extra_summary())
+        extra = solver.extra_summary()
+        self.warnings.extend(extra.pop("ppe_warnings", []))
+        summary.update(extra)
         if instability:
             summary["instability"] = instability
         if folder:
