@@ -173,31 +173,26 @@ def cmd_render(args) -> int:
     return 0
 
 
+def _lazy(module: str, name: str):
+    """A command implemented in another module, imported only when that command runs."""
+    def call(args) -> int:
+        import importlib
+        return getattr(importlib.import_module(f"taichi_sph.{module}"), name)(args)
+    return call
+
+
+COMMANDS = {
+    "run": cmd_run, "check": cmd_check, "list": cmd_list, "config-doc": cmd_config_doc, "render": cmd_render,
+    "bench": _lazy("bench", "cmd_bench"), "compare": _lazy("compare", "cmd_compare"),
+    "sweep": _lazy("sweep", "cmd_sweep"), "stability": _lazy("stability", "cmd_stability"),
+}
+
+
 def _dispatch(args) -> int:
-    if args.command == "run":
-        return cmd_run(args)
-    if args.command == "check":
-        return cmd_check(args)
-    if args.command == "list":
-        return cmd_list(args)
-    if args.command == "config-doc":
-        return cmd_config_doc(args)
-    if args.command == "render":
-        return cmd_render(args)
-    if args.command == "bench":
-        from .bench import cmd_bench
-        return cmd_bench(args)
-    if args.command == "compare":
-        from .compare import cmd_compare
-        return cmd_compare(args)
-    if args.command == "sweep":
-        from .sweep import cmd_sweep
-        return cmd_sweep(args)
-    if args.command == "stability":
-        from .stability import cmd_stability
-        return cmd_stability(args)
-    raise UsageError("taichi-sph: give a command: run, check, list, compare, sweep, stability, bench, render "
-                     "(see `taichi-sph --help`)")
+    command = COMMANDS.get(args.command)
+    if command is None:
+        raise UsageError("taichi-sph: give a command: " + ", ".join(COMMANDS) + " (see `taichi-sph --help`)")
+    return command(args)
 
 
 def main(argv: list[str] | None = None) -> int:
