@@ -29,7 +29,7 @@ class WCSPHSolver(SolverBase):
         P = self.particles
         # both are computed after the last neighbour rebuild and used before the next: not permuted
         self.drho = P.add_scalar()
-        self.drho_diffusion = P.add_scalar() if f.density_diffusion != "none" else self.drho
+        self.drho_diffusion = P.add_scalar() if f.density_diffusion != "none" else None
         av = cfg.wcsph.artificial_viscosity
         self.alpha, self.beta = av.alpha, av.beta
         self.delta_h_c0 = cfg.wcsph.density_diffusion.delta * self.h * self.c0
@@ -145,7 +145,10 @@ class WCSPHSolver(SolverBase):
             if P.kind[a] == FLUID:
                 P.x[a] += dt * P.v[a]
                 if ti.static(self.features.density == "continuity"):
-                    P.rho[a] += dt * (self.drho[a] + self.drho_diffusion[a])
+                    rate = self.drho[a]
+                    if ti.static(self.features.density_diffusion != "none"):
+                        rate += self.drho_diffusion[a]
+                    P.rho[a] += dt * rate
                     P.p[a] = self.tait(P.rho[a])
                 if ti.static(self.features.reflecting):
                     self.reflect(a)
