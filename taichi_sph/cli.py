@@ -55,7 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--video", choices=("mp4", "gif", "none"))
 
     p = sub.add_parser("bench", help="particle-steps/s, compile time and memory")
-    p.add_argument("--particles", default="10000,100000", help="comma-separated particle counts (default 10000,100000)")
+    p.add_argument("--particles", default="10000,100000,1000000",
+                   help="comma-separated particle counts (default 10000,100000,1000000; 1M in 3D takes minutes)")
     p.add_argument("--dims", default="2,3", help="comma-separated dimensions (default 2,3)")
     p.add_argument("--solver", default="wcsph", choices=("wcsph", "isph"))
     p.add_argument("--steps", type=int, default=100, help="timed steps per case")
