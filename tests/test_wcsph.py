@@ -175,3 +175,16 @@ def test_continuity_rate_matches_divergence(diffusion):
     inner = np.all(np.abs(before["x"]) < 0.2, axis=1)
     rate = (after["rho"][inner] - before["rho"][inner]) / 1e-5
     assert np.allclose(rate, 0.2 * 1000.0, rtol=0.02)
+
+
+def test_f64_precision_runs_in_float64(tmp_path):
+    """precision: f64 reaches every field (own process: Taichi's default float is fixed at init)."""
+    import subprocess
+    import sys
+    run_dir = tmp_path / "f64"
+    proc = subprocess.run([sys.executable, "-m", "taichi_sph", "run", str(CONFIGS / "column_1d.yaml"), "--no-render",
+                           "--quiet", "--t-end", "0.05", "--set", "precision=f64", "--out", str(run_dir)],
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr
+    snap = np.load(sorted((run_dir / "snapshots").glob("*.npz"))[-1])
+    assert snap["x"].dtype == np.float64 and snap["rho"].dtype == np.float64
