@@ -191,7 +191,8 @@ class Probe:
 @dataclass(frozen=True)
 class Metric:
     type: str = opt("hydrostatic", "reference metric written to summary.json errors",
-                    choices=("hydrostatic", "surge_front", "taylor_green", "poiseuille", "cavity", "column_fall"))
+                    choices=("hydrostatic", "surge_front", "taylor_green", "poiseuille", "cavity", "column_fall",
+                             "probe_pressure"))
     depth: float | None = opt(None, "hydrostatic: fluid depth H", unit="m", positive=True)
     floor: float = opt(0.0, "hydrostatic / surge_front: floor height", unit="m")
     column_width: float | None = opt(None, "surge_front: column width a", unit="m", positive=True)
@@ -199,6 +200,9 @@ class Metric:
     t_max: float = opt(3.0, "surge_front: last dimensionless time T compared")
     lid_velocity: float = opt(1.0, "cavity: lid speed", unit="m/s")
     width: float = opt(1.0, "poiseuille / cavity: channel or cavity width", unit="m")
+    probe: str = opt("", "probe_pressure: name of the probe (see probes) compared with the reference")
+    reference: str = opt("dambreak_buchner2002_pressure_probe_pysph",
+                         "probe_pressure: bundled reference table with columns t_star = t sqrt(g/H), p_star = p/(rho0 g H)")
 
 
 @dataclass(frozen=True)
@@ -587,9 +591,12 @@ def validate(cfg: Config, source: str) -> None:
     for i, p in enumerate(cfg.probes):
         _check_vec(p.position, d, f"probes[{i}].position", source)
     for i, m in enumerate(cfg.metrics):
-        needed = {"hydrostatic": "depth", "surge_front": "column_width"}.get(m.type)
+        needed = {"hydrostatic": "depth", "surge_front": "column_width", "probe_pressure": "depth"}.get(m.type)
         if needed and getattr(m, needed) is None:
             raise ConfigError(f"a {m.type} metric needs '{needed}'", source=source, key=f"metrics[{i}].{needed}")
+        if m.type == "probe_pressure" and m.probe not in [p.name for p in cfg.probes]:
+            raise ConfigError(f"probe '{m.probe}' is not among the probes: {', '.join(p.name for p in cfg.probes) or 'none'}",
+                              source=source, key=f"metrics[{i}].probe")
     if cfg.fluid.c0 != AUTO and (isinstance(cfg.fluid.c0, str) or cfg.fluid.c0 <= 0):
         raise ConfigError(f"must be > 0 or 'auto', got {cfg.fluid.c0!r}", source=source, key="fluid.c0")
     if cfg.time.dt != AUTO and (isinstance(cfg.time.dt, str) or cfg.time.dt <= 0):

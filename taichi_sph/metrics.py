@@ -126,7 +126,55 @@ class ColumnFallMetric(MetricObserver):
         return {"free_fall_com_error_rel": rel, "impact_t": self.impact_t if self.impact_t is not None else float("nan")}
 
 
+class ProbePressureMetric(MetricObserver):
+    """A wall-pressure probe against an experiment, in t* = t sqrt(g/H), p* = p / (rho0 g H) (Buchner 2002):
+    RMS of p*_sim - p*_ref at the reference points with t* inside the run, and the impact time (first t*
+    with p* > 0.2) of both. No fluid at the probe reads as ambient pressure (p* = 0); the simulated signal
+    is averaged over a window of `window_t_star` (a real transducer integrates over its face and
+    response time; WCSPH adds acoustic noise at the sound period)."""
+
+    window_t_star = 0.1
+
+    def __init__(self, cfg: Config, spec: Metric) -> None:
+        super().__init__(cfg, spec)
+        self.g = float(np.linalg.norm(cfg.gravity_vector))
+        self.t: list[float] = []
+        self.p: list[float] = []
+
+    def observe(self, t: float, state: dict) -> dict:
+        return {}
+
+    def record(self, t: float, value: float) -> None:
+        self.t.append(t)
+        self.p.append(value)
+
+    def finish(self, state: dict) -> dict:
+        H = self.spec.depth
+        data = ref.load_reference(self.spec.reference)
+        order = np.argsort(data["t_star"])
+        t_ref, p_ref = data["t_star"][order], data["p_star"][order]
+        t_sim = np.asarray(self.t) * math.sqrt(self.g / H)
+        p_sim = (np.asarray(self.p) - self.cfg.fluid.background_pressure) / (self.cfg.fluid.rho0 * self.g * H)
+        p_sim = np.where(np.isfinite(p_sim), p_sim, 0.0)
+        if len(t_sim) > 2:
+            step = max(float(np.median(np.diff(t_sim))), 1e-12)
+            width = max(1, int(round(self.window_t_star / step)))
+            p_sim = np.convolve(p_sim, np.ones(width) / width, mode="same")
+        inside = (t_ref >= t_sim.min()) & (t_ref <= t_sim.max()) if len(t_sim) else np.zeros(len(t_ref), bool)
+        if inside.sum() < 5:
+            return {"probe_note": "run too short for the probe reference"}
+        err = np.interp(t_ref[inside], t_sim, p_sim) - p_ref[inside]
+
+        def impact(t, p):
+            hit = np.nonzero(p > 0.2)[0]
+            return float(t[hit[0]]) if len(hit) else float("nan")
+
+        return {"probe_rms_p_star": float(np.sqrt(np.mean(err ** 2))), "probe_points": int(inside.sum()),
+                "probe_impact_t_star": impact(t_sim, p_sim), "probe_impact_t_star_ref": impact(t_ref, p_ref)}
+
+
 METRICS: dict[str, type[MetricObserver]] = {
+    "probe_pressure": ProbePressureMetric,
     "hydrostatic": HydrostaticMetric,
     "surge_front": SurgeFrontMetric,
     "column_fall": ColumnFallMetric,

@@ -67,6 +67,8 @@ class Simulation:
             row[p.name] = probe_value(state, p.position, p.quantity, solver.support, solver.kernel.w_np)
         for m in self.metrics:
             row.update(m.observe(solver.t, state))
+            if getattr(m.spec, "probe", "") in row and hasattr(m, "record"):
+                m.record(solver.t, row[m.spec.probe])
         row.update(solver.extra_timeseries())
         return row
 
