@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import AUTO, Config
+from .geometry import lattice_neighbour_count
 from .kernels import support_factor
 
 # Courant number above which the reference step (cfl 0.25) is exceeded: a warning
@@ -128,12 +129,7 @@ def _time_step(cfg: Config) -> list[CheckResult]:
 
 def lattice_neighbours(cfg: Config) -> int:
     """Neighbours of one particle within the kernel support on the initial lattice."""
-    support = support_factor(cfg.particles.kernel) * cfg.h
-    n = int(math.ceil(support / cfg.particles.dx))
-    offs = np.arange(-n, n + 1)
-    grids = np.meshgrid(*([offs] * cfg.dim), indexing="ij")
-    r = np.sqrt(sum(g.astype(float) ** 2 for g in grids)) * cfg.particles.dx
-    return int(np.count_nonzero(r < support)) - 1
+    return lattice_neighbour_count(cfg.dim, cfg.particles.dx, support_factor(cfg.particles.kernel) * cfg.h)
 
 
 def _support(cfg: Config) -> list[CheckResult]:

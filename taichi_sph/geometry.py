@@ -219,14 +219,24 @@ def wall_crossings(x: np.ndarray, kind: np.ndarray, cfg: Config) -> int:
     return count
 
 
+def lattice_distances(dim: int, dx: float, reach: float) -> np.ndarray:
+    """|x_a - x_b| from one site of an unbounded square/cubic lattice (spacing dx) to every site of the
+    cube of half-width reach + dx around it, the site itself (r = 0) included."""
+    n = int(math.ceil(reach / dx)) + 1
+    offs = np.arange(-n, n + 1) * dx
+    grids = np.meshgrid(*([offs] * dim), indexing="ij")
+    return np.sqrt(sum(g.ravel() ** 2 for g in grids))
+
+
+def lattice_neighbour_count(dim: int, dx: float, radius: float) -> int:
+    """Lattice neighbours of one site closer than `radius` (the site itself not counted)."""
+    return int(np.count_nonzero(lattice_distances(dim, dx, radius) < radius)) - 1
+
+
 def lattice_kernel_sum(cfg: Config, w) -> float:
     """sum_b W(x_a - x_b) V_b over a full lattice (used to flag free-surface particles)."""
     dx = cfg.particles.dx
-    support = cfg.particles.hdx * dx * 3.0
-    n = int(math.ceil(support / dx)) + 1
-    offs = np.arange(-n, n + 1) * dx
-    grids = np.meshgrid(*([offs] * cfg.dim), indexing="ij")
-    r = np.sqrt(sum(g.ravel() ** 2 for g in grids))
+    r = lattice_distances(cfg.dim, dx, cfg.particles.hdx * dx * 3.0)
     return float(np.sum(w(r)) * dx ** cfg.dim)
 
 
@@ -234,10 +244,5 @@ def max_neighbors_for(cfg: Config, support_radius: float) -> int:
     """Neighbour-list capacity: the configured value, or 2.5x the lattice count within the support."""
     if cfg.particles.max_neighbors != AUTO:
         return int(cfg.particles.max_neighbors)
-    dx = cfg.particles.dx
-    n = int(math.ceil(support_radius / dx)) + 1
-    offs = np.arange(-n, n + 1) * dx
-    grids = np.meshgrid(*([offs] * cfg.dim), indexing="ij")
-    r = np.sqrt(sum(g.ravel() ** 2 for g in grids))
-    lattice = int(np.count_nonzero(r < support_radius)) - 1
+    lattice = lattice_neighbour_count(cfg.dim, cfg.particles.dx, support_radius)
     return max(8, int(math.ceil(2.5 * lattice)))

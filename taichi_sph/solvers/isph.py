@@ -42,7 +42,7 @@ import numpy as np
 import taichi as ti
 
 from ..config import Config
-from ..geometry import FLUID, WALL, ParticleArrays, lattice_kernel_sum
+from ..geometry import FLUID, WALL, ParticleArrays, lattice_distances, lattice_kernel_sum
 from ..physics.momentum import monaghan_viscosity, morris_laminar_viscosity
 from ..physics.ppe import (BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE,
                            free_surface_pressure, neumann_wall_pressure_difference, ppe_source,
@@ -63,11 +63,7 @@ MIN_MOMENT_DETERMINANT = 0.1
 
 def _lattice_offsets(cfg: Config) -> np.ndarray:
     """Distances |x_a - x_b| > 0 from one site of a full lattice of spacing dx to the others in reach."""
-    dx = cfg.particles.dx
-    n = int(math.ceil(cfg.particles.hdx * 3.0)) + 1
-    offs = np.arange(-n, n + 1) * dx
-    grids = np.meshgrid(*([offs] * cfg.dim), indexing="ij")
-    r = np.sqrt(sum(g.ravel() ** 2 for g in grids))
+    r = lattice_distances(cfg.dim, cfg.particles.dx, cfg.particles.hdx * cfg.particles.dx * 3.0)
     return r[r > 0]
 
 
