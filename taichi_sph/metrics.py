@@ -142,6 +142,7 @@ class ProbePressureMetric(MetricObserver):
         self.p: list[float] = []
 
     def observe(self, t: float, state: dict) -> dict:
+        self.record(t, state["probes"][self.spec.probe])
         return {}
 
     def record(self, t: float, value: float) -> None:

@@ -63,12 +63,12 @@ class Simulation:
                "kinetic_energy": diag.kinetic_energy(state["v"][f], state["mass"][f]),
                "max_speed": diag.max_speed(state["v"][f]),
                "max_density_error": diag.max_density_error(state["rho"][f], cfg.fluid.rho0)}
-        for p in cfg.probes:
-            row[p.name] = probe_value(state, p.position, p.quantity, solver.support, solver.kernel.w_np)
+        probes = {p.name: probe_value(state, p.position, p.quantity, solver.support, solver.kernel.w_np)
+                  for p in cfg.probes}
+        row.update(probes)
+        observed = dict(state, probes=probes)  # metrics see the probe readings beside the particle state
         for m in self.metrics:
-            row.update(m.observe(solver.t, state))
-            if getattr(m.spec, "probe", "") in row and hasattr(m, "record"):
-                m.record(solver.t, row[m.spec.probe])
+            row.update(m.observe(solver.t, observed))
         row.update(solver.extra_timeseries())
         return row
 

@@ -28,7 +28,7 @@ class WCSPHSolver(SolverBase):
         f = self.features
         P = self.particles
         # both are computed after the last neighbour rebuild and used before the next: not permuted
-        self.drho = P.add_scalar()
+        self.drho = P.add_scalar() if f.density == "continuity" else None
         self.drho_diffusion = P.add_scalar() if f.density_diffusion != "none" else None
         av = cfg.wcsph.artificial_viscosity
         self.alpha, self.beta = av.alpha, av.beta
