@@ -143,6 +143,8 @@ class ISPH:
     blend: float = opt(0.1, "weight of the density-invariance source in 'blend'", minimum=0.0)
     ppe: PPE = opt(factory=PPE, doc="PPE solver settings")
     free_surface_threshold: float = opt(0.8, "a particle is free-surface when its kernel sum / lattice kernel sum is below this", positive=True)
+    artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor; None = wcsph.artificial_viscosity.alpha "
+                                                         "(ISPH steps ~10x longer, so the same alpha damps differently)", minimum=0.0)
 
 
 @dataclass(frozen=True)
@@ -275,6 +277,14 @@ class Config:
         if self.particles.skin == AUTO:
             return 0.15 if self.solver == "wcsph" else 0.0
         return float(self.particles.skin)
+
+    @property
+    def artificial_viscosity(self) -> tuple[float, float]:
+        """(alpha, beta) of the Monaghan viscosity for this run's solver."""
+        av = self.wcsph.artificial_viscosity
+        if self.solver == "isph" and self.isph.artificial_viscosity_alpha is not None:
+            return self.isph.artificial_viscosity_alpha, av.beta
+        return av.alpha, av.beta
 
     @property
     def shifting_enabled(self) -> bool:

@@ -42,7 +42,7 @@ class Features:
             diffusion = "none"
         if diffusion == "fourtakas" and not cfg.has_gravity:
             diffusion = "molteni"  # no hydrostatic part to remove
-        av = cfg.wcsph.artificial_viscosity
+        alpha, beta = cfg.artificial_viscosity
         return cls(
             dim=cfg.dim,
             solver=cfg.solver,
@@ -53,7 +53,7 @@ class Features:
             no_slip=walls and cfg.walls.slip == "no_slip",
             gravity=cfg.has_gravity,
             laminar_viscosity=cfg.fluid.nu > 0.0,
-            artificial_viscosity=(av.alpha > 0.0 or av.beta > 0.0),
+            artificial_viscosity=(alpha > 0.0 or beta > 0.0),
             density=wc.density if cfg.solver == "wcsph" else "summation",
             density_diffusion=diffusion,
             tensile_correction=cfg.solver == "wcsph" and wc.tensile_correction.enabled,

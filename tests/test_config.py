@@ -287,6 +287,18 @@ def test_bundled_dam_break_sound_speed_is_ten_times_the_reference_speed():
     assert cfg.sound_speed == pytest.approx(10 * cfg.fluid.reference_speed)
 
 
+def test_isph_artificial_viscosity_alpha_overrides_only_isph(tmp_path):
+    from taichi_sph.features import Features
+    base = write(tmp_path / "a.yaml", MINIMAL)
+    cfg = load_config(base, ["wcsph.artificial_viscosity.alpha=0.0", "isph.artificial_viscosity_alpha=0.03"])
+    assert cfg.artificial_viscosity == (0.0, 0.0)
+    assert not Features.from_config(cfg, 0).artificial_viscosity  # WCSPH: compiled out
+    isph = load_config(base, ["solver=isph", "wcsph.artificial_viscosity.alpha=0.0", "isph.artificial_viscosity_alpha=0.03"])
+    assert isph.artificial_viscosity[0] == 0.03 and Features.from_config(isph, 0).artificial_viscosity
+    inherit = load_config(base, ["solver=isph", "wcsph.artificial_viscosity.alpha=0.05"])
+    assert inherit.artificial_viscosity[0] == 0.05  # None: ISPH uses the WCSPH value
+
+
 def test_periodic_gravity_and_shifting_defaults(tmp_path):
     cfg = load_config(write(tmp_path / "a.yaml", MINIMAL))
     assert cfg.periodic == (False, False)

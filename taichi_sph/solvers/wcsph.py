@@ -30,8 +30,7 @@ class WCSPHSolver(SolverBase):
         # both are computed after the last neighbour rebuild and used before the next: not permuted
         self.drho = P.add_scalar() if f.density == "continuity" else None
         self.drho_diffusion = P.add_scalar() if f.density_diffusion != "none" else None
-        av = cfg.wcsph.artificial_viscosity
-        self.alpha, self.beta = av.alpha, av.beta
+        self.alpha, self.beta = cfg.artificial_viscosity
         self.delta_h_c0 = cfg.wcsph.density_diffusion.delta * self.h * self.c0
         tc = cfg.wcsph.tensile_correction
         self.tc_epsilon, self.tc_n = tc.epsilon, tc.n
