@@ -101,19 +101,24 @@ class WCSPHSolver(SolverBase):
                 self.accumulate_stats(a)
 
     @ti.func
-    def continuity_pass(self):
-        """drho_a = sum_b m_b (v_a - v_b) . grad_a W_ab with the velocities just kicked, so that density
-        (a position-like variable) drifts with the new velocity: the scheme stays symplectic for sound waves."""
+    def continuity_pass(self, dt_kick: float):
+        """drho_a = sum_b m_b (v_a - v_b) . grad_a W_ab with the kicked velocities v + dt_kick a (formed
+        here; the drift stores them), so that density (a position-like variable) drifts with the new
+        velocity: the scheme stays symplectic for sound waves."""
         P = self.particles
         NS = self.nsearch
         for a in range(self.n):
             if P.kind[a] == FLUID:
-                xa, va = P.x[a], P.v[a]
+                xa = P.x[a]
+                va = P.v[a] + dt_kick * P.acc[a]
                 drho = 0.0
                 for k in range(NS.count[a]):
                     b = NS.neighbors[a, k]
                     r_ab = NS.pair_vector(xa, P.x[b])
-                    drho += continuity_rate(P.mass[b], va - P.v[b], self.kernel.grad_w(r_ab, r_ab.norm()))
+                    vb = P.v[b]
+                    if P.kind[b] == FLUID:
+                        vb += dt_kick * P.acc[b]
+                    drho += continuity_rate(P.mass[b], va - vb, self.kernel.grad_w(r_ab, r_ab.norm()))
                 self.drho[a] = drho
 
     @ti.kernel
@@ -122,11 +127,11 @@ class WCSPHSolver(SolverBase):
 
     @ti.kernel
     def kick_continuity_drift(self, dt_kick: float, dt: float):
-        """One launch: v += dt_kick a; drho with the kicked v (continuity); x, rho += dt (...)."""
-        self.kick_pass(dt_kick)
+        """One launch, two particle loops: drho with the kicked v (continuity); then per particle
+        v += dt_kick a, x, rho += dt (...). (A separate kick loop cost a thread-pool round per step.)"""
         if ti.static(self.features.density == "continuity"):
-            self.continuity_pass()
-        self.drift_pass(dt)
+            self.continuity_pass(dt_kick)
+        self.drift_pass(dt_kick, dt)
 
     @ti.func
     def kick_pass(self, dt: float):
@@ -137,11 +142,13 @@ class WCSPHSolver(SolverBase):
                 P.v[a] += dt * P.acc[a]
 
     @ti.func
-    def drift_pass(self, dt: float):
-        """x += dt v; rho += dt (drho + delta-SPH diffusion) for continuity density; reflect at faces."""
+    def drift_pass(self, dt_kick: float, dt: float):
+        """v += dt_kick a; x += dt v; rho += dt (drho + delta-SPH diffusion) for continuity density;
+        reflect at faces."""
         P = self.particles
         for a in range(self.n):
             if P.kind[a] == FLUID:
+                P.v[a] += dt_kick * P.acc[a]
                 P.x[a] += dt * P.v[a]
                 if ti.static(self.features.density == "continuity"):
                     rate = self.drho[a]
