@@ -7,8 +7,8 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
    no fluid neighbour in the 45-degree cone around the outward normal (a contact line, where the wall
    fills the kernel sum). These particles get the Dirichlet pressure p = p_b + (dx/2) |rho0 (g - a)| (the
    pressure half a spacing below the surface, p_b in free fall; a is last step's acceleration averaged
-   over the fluid neighbours, so one particle's spike does not feed its own next pressure; the ambient pressure p_b is
-   `fluid.background_pressure`, 0 in free-surface scenes) and are not unknowns.
+   over the fluid neighbours, so one particle's spike does not feed its own next pressure; the ambient
+   pressure p_b is `fluid.background_pressure`, 0 in free-surface scenes) and are not unknowns.
 2. predictor: v* = v + dt (g + viscous), no pressure (viscous terms as in WCSPH).
 3. PPE  -sum_b K_ab (p_a - p_b) = s_a  at every other fluid particle (physics/ppe.py):
    - fluid neighbours are unknowns, or Dirichlet values moved to the right side;
@@ -21,8 +21,9 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
    Source (`isph.source`): div(v*) / dt, (rho0 - rho*) / (rho0 dt^2) or their blend. The density term
    corrects compression only (rho floored at rho0): a liquid does not expand, and a summation density
    below rho0 is a truncated support (next to the free surface) or lattice disorder, which the term
-   would turn into suction. With the floor, dam_break_2d (a/80) runs ahead less early and the front
-   shape matches Martin & Moyce better (shifted RMS 0.0425 -> 0.0395 at blend 0.03-0.1).
+   would turn into suction. That suction held back the thin dam-break tongue and bent the front away
+   from Martin & Moyce's shape (a/80: shifted RMS 0.0425 at blend 0.03 without the floor, 0.0395 at
+   blend 0.1 with it), and at CFL 0.1 (source ~ 1/dt^2) it blew the dam break up at t = 0.56 s.
    No free-surface particle at all (closed or periodic box): the right side is projected to zero mean
    and the pressure shifted to mean `fluid.background_pressure`.
 4. Matrix-free weighted Jacobi or Jacobi-preconditioned CG (physics/ppe.py), warm-started from the
