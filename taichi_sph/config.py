@@ -143,6 +143,8 @@ class ISPH:
     blend: float = opt(0.1, "weight of the density-invariance source in 'blend'", minimum=0.0)
     ppe: PPE = opt(factory=PPE, doc="PPE solver settings")
     free_surface_threshold: float = opt(0.8, "a particle is free-surface when its kernel sum / lattice kernel sum is below this", positive=True)
+    compression_only: bool = opt(False, "density-invariance source corrects compression only (rho floored at rho0): for free-surface "
+                                        "flows, where a kernel-sum deficit is not expansion; off in closed boxes (one-sided source drifts)")
     artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor; None = wcsph.artificial_viscosity.alpha "
                                                          "(ISPH steps ~10x longer, so the same alpha damps differently)", minimum=0.0)
 

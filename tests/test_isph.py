@@ -190,12 +190,12 @@ def test_max_iterations_is_a_warning():
     assert "ppe_warnings" not in s
 
 
-def _interior_rhs(scale: float) -> np.ndarray:
+def _interior_rhs(scale: float, compression_only: bool = True) -> np.ndarray:
     """PPE right side at interior rows (> one support from walls and surface) of a 1 m x 1 m column at
     rest whose fluid lattice is scaled by `scale` about its centre (1.02: 4% less dense)."""
     cfg = tank_cfg(bodies=[{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [1.0, 1.0]},
                            {"type": "wall_box", "lo": [0.0, 0.0], "hi": [1.0, 1.2], "layers": 4}],
-                   domain={"lo": [-0.25, -0.25], "hi": [1.25, 1.5]})
+                   domain={"lo": [-0.25, -0.25], "hi": [1.25, 1.5]}, isph={"compression_only": compression_only})
     arrays = build_particles(cfg)
     fluid = arrays.kind == 0
     arrays.x[fluid] = 0.5 + (arrays.x[fluid] - 0.5) * scale
@@ -212,7 +212,7 @@ def _interior_rhs(scale: float) -> np.ndarray:
 
 
 def test_density_source_corrects_compression_only():
-    """The density-invariance source pushes a compressed lattice apart but does not pull a sparse one
+    """With isph.compression_only the density-invariance source pushes a compressed lattice apart but does not pull a sparse one
     together: a summation density below rho0 is a truncated support or disorder, not expansion, and
     turning it into suction slowed the dam-break front (shifted RMS 0.0425 -> 0.0395)."""
     compressed = _interior_rhs(0.98)
@@ -220,3 +220,5 @@ def test_density_source_corrects_compression_only():
     # V blend (rho - rho0) / (rho0 dt^2) = 0.05^2 x 0.1 x ~0.04 / 0.005^2 ~ 0.4 at every interior row
     assert np.abs(compressed).min() > 0.3
     assert np.abs(sparse).max() < 1e-3 * np.abs(compressed).max()
+    # off (the default, for closed boxes): the deficit is a source too
+    assert np.abs(_interior_rhs(1.02, compression_only=False)).min() > 0.3

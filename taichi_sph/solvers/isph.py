@@ -18,12 +18,15 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
    - the part of a support cut off by the free surface: pressure continued linearly with the gradient
      rho0 (g - a) of the last step, again only a right-side term;
    - rows scaled by V_a = m_a / rho0: symmetric positive definite.
-   Source (`isph.source`): div(v*) / dt, (rho0 - rho*) / (rho0 dt^2) or their blend. The density term
-   corrects compression only (rho floored at rho0): a liquid does not expand, and a summation density
+   Source (`isph.source`): div(v*) / dt, (rho0 - rho*) / (rho0 dt^2) or their blend. With
+   `isph.compression_only` (free-surface scenes) the density term corrects compression only (rho floored
+   at rho0): a liquid does not expand, and a summation density
    below rho0 is a truncated support (next to the free surface) or lattice disorder, which the term
    would turn into suction. That suction held back the thin dam-break tongue and bent the front away
    from Martin & Moyce's shape (a/80: shifted RMS 0.0425 at blend 0.03 without the floor, 0.0395 at
    blend 0.1 with it), and at CFL 0.1 (source ~ 1/dt^2) it blew the dam break up at t = 0.56 s.
+   It is off by default: in a closed box the volume is fixed, a deficit in one place is an excess in
+   another, and a one-sided source drifts (cavity_2d: 25% density error by t = 1.7 s with it).
    No free-surface particle at all (closed or periodic box): the right side is projected to zero mean
    and the pressure shifted to mean `fluid.background_pressure`.
 4. Matrix-free weighted Jacobi or Jacobi-preconditioned CG (physics/ppe.py), warm-started from the
@@ -96,6 +99,7 @@ class ISPHSolver(SolverBase):
         ic = cfg.isph
         self.source = ic.source
         self.beta = SOURCE_WEIGHT[ic.source](ic.blend)
+        self.compression_only = ic.compression_only
         self.surface_threshold = ic.free_surface_threshold
         self.surface_depth = 0.5 * self.dx
         self.lattice_sum = lattice_kernel_sum(cfg, self.kernel.w_np)
@@ -261,7 +265,9 @@ class ISPHSolver(SolverBase):
                     rhs += self.grad_p_estimate[a].dot(moment)
                     rho = ti.max(rho, self.rho0)
                     P.rho[a] = rho
-                rhs -= vol_a * ppe_source(div_v, ti.max(rho, self.rho0), self.rho0, dt, dt_relax, self.beta)  # compression only
+                if ti.static(self.compression_only):
+                    rho = ti.max(rho, self.rho0)
+                rhs -= vol_a * ppe_source(div_v, rho, self.rho0, dt, dt_relax, self.beta)
                 if diag > 0.0:
                     E.diag[a] = diag
                     E.diag_dirichlet[a] = diag_dirichlet
