@@ -462,32 +462,32 @@ class _Binding:
         self.x = x
         self.fields = (x,) + fields
         self.tmps = tuple(NeighborSearch._new_scratch_like(f) for f in self.fields)
-        # all fields one value per particle (the usual case): two loops in all instead of two per field;
-        # each parallel loop is a thread-pool round (~70 us on a 2-core VM), which small scenes feel
-        self.per_particle = all(len(f.shape) == 1 and f.shape[0] == ns.n for f in self.fields)
+        # fields with one value per particle (all of a solver's): gathered in one loop and copied back in
+        # another, instead of two loops per field; each parallel loop is a thread-pool round (~70 us on a
+        # 2-core VM), which small scenes feel. Fields with more dimensions keep their own loops.
+        self.per_particle = tuple(k for k, f in enumerate(self.fields) if len(f.shape) == 1)
+        self.other = tuple(k for k, f in enumerate(self.fields) if len(f.shape) != 1)
 
     @ti.func
     def permute_pass(self):
         """Apply `order` to x and every bound field (gather into scratch, copy back)."""
         ns = self.ns
-        if ti.static(self.per_particle):
-            for i in range(ns.n):
-                j = ns.order[i]
-                for k in ti.static(range(len(self.fields))):
-                    self.tmps[k][i] = self.fields[k][j]
-            for i in range(ns.n):
-                for k in ti.static(range(len(self.fields))):
-                    self.fields[k][i] = self.tmps[k][i]
-        else:
-            for k in ti.static(range(len(self.fields))):
-                f = ti.static(self.fields[k])
-                tmp = ti.static(self.tmps[k])
-                for I in ti.grouped(tmp):
-                    J = I
-                    J[0] = ns.order[I[0]]
-                    tmp[I] = f[J]
-                for I in ti.grouped(f):
-                    f[I] = tmp[I]
+        for i in range(ns.n):
+            j = ns.order[i]
+            for k in ti.static(self.per_particle):
+                self.tmps[k][i] = self.fields[k][j]
+        for i in range(ns.n):
+            for k in ti.static(self.per_particle):
+                self.fields[k][i] = self.tmps[k][i]
+        for k in ti.static(self.other):
+            f = ti.static(self.fields[k])
+            tmp = ti.static(self.tmps[k])
+            for I in ti.grouped(tmp):
+                J = I
+                J[0] = ns.order[I[0]]
+                tmp[I] = f[J]
+            for I in ti.grouped(f):
+                f[I] = tmp[I]
 
     @ti.kernel
     def build_all(self):

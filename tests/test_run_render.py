@@ -7,6 +7,7 @@ from pathlib import Path
 
 import imageio.v3 as iio
 import numpy as np
+import pytest
 
 from taichi_sph.cli import main
 
@@ -35,22 +36,17 @@ def _check_frames_and_video(run: Path, expected_frames: int) -> None:
     assert summary["render_time_s"] > 0.0
 
 
-def test_dam_break_2d_renders_frames_and_video(tmp_path):
-    run = tmp_path / "db2"
-    code = main(["run", str(CONFIGS / "dam_break_2d.yaml"), "--out", str(run), "--quiet", "--t-end", "0.1",
-                 "--set", "particles.dx=0.05", "--set", "render.every=0.02", "--set", "render.width=320",
+@pytest.mark.parametrize("config, t_end, dx, frames", [
+    ("dam_break_2d.yaml", "0.1", "0.05", 6),   # t = 0, 0.02, ..., 0.1
+    ("dam_break_3d.yaml", "0.06", "0.04", 4),
+])
+def test_dam_break_renders_frames_and_video(tmp_path, config, t_end, dx, frames):
+    run = tmp_path / "db"
+    code = main(["run", str(CONFIGS / config), "--out", str(run), "--quiet", "--t-end", t_end,
+                 "--set", f"particles.dx={dx}", "--set", "render.every=0.02", "--set", "render.width=320",
                  "--set", "render.height=180"])
     assert code == 0
-    _check_frames_and_video(run, 6)  # t = 0, 0.02, ..., 0.1
-
-
-def test_dam_break_3d_renders_frames_and_video(tmp_path):
-    run = tmp_path / "db3"
-    code = main(["run", str(CONFIGS / "dam_break_3d.yaml"), "--out", str(run), "--quiet", "--t-end", "0.06",
-                 "--set", "particles.dx=0.04", "--set", "render.every=0.02", "--set", "render.width=320",
-                 "--set", "render.height=180"])
-    assert code == 0
-    _check_frames_and_video(run, 4)
+    _check_frames_and_video(run, frames)
 
 
 def test_no_render_does_not_import_the_renderer(tmp_path):
