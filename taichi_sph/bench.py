@@ -76,8 +76,11 @@ def worker(spec: dict) -> dict:
         stepping = time.perf_counter() - t1
         out.update(steps=solver.step_count, stepping_s=stepping, t=solver.t)
     else:
-        for _ in range(3):
+        schedule = getattr(solver, "schedule", None)  # time the steady state: after the loop-schedule probe
+        warmup = 0
+        while warmup < 3 or (schedule is not None and schedule.deciding):
             solver.step()
+            warmup += 1
         t1 = time.perf_counter()
         for _ in range(spec["steps"]):
             solver.step()
@@ -90,6 +93,8 @@ def worker(spec: dict) -> dict:
     out["particle_steps_per_s"] = arrays.n / per_step
     out["fluid_particle_steps_per_s"] = arrays.n_fluid / per_step
     out["wall_particle_steps_per_s"] = arrays.n_wall / per_step
+    schedule = getattr(solver, "schedule", None)
+    out["loops"] = "-" if schedule is None or schedule.serial is None else ("serial" if schedule.serial else "parallel")
     out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     extra = solver.extra_summary()
     if "ppe" in extra:
@@ -154,7 +159,7 @@ def cmd_bench(args) -> int:
             print(f"\nPySPH dam_break_2d scene (dx 0.03, to t = 0.7 s): {res.get('n_fluid')} fluid + {res.get('n_wall')} wall, "
                   f"{res.get('steps')} steps, stepping {res.get('stepping_s', float('nan')):.2f} s "
                   f"({'PySPH SISPH to T = 3 here: 15.9 s' if args.solver == 'isph' else 'PySPH 1.0b2 WCSPH here: 9.6 s'}), "
-                  f"{_fmt_rate(res.get('particle_steps_per_s'))} M particle-steps/s; "
+                  f"{_fmt_rate(res.get('particle_steps_per_s'))} M particle-steps/s, loops {res.get('loops', '-')}; "
                   f"cold start to first step {res.get('time_to_first_step_s', float('nan')):.1f} s, "
                   f"warm {warm.get('time_to_first_step_s', float('nan')):.1f} s")
     if args.json:
@@ -165,14 +170,14 @@ def cmd_bench(args) -> int:
 def _print_row(row: dict, header: bool) -> None:
     if header:
         print(f"{'dim':>3} {'fluid':>9} {'wall':>8} {'Mpart-steps/s':>13} {'fluid':>7} {'wall':>7} {'ms/step':>8} "
-              f"{'compile cold':>12} {'warm':>6} {'peak MiB':>9}")
+              f"{'compile cold':>12} {'warm':>6} {'peak MiB':>9} {'loops':>8}")
     if "error" in row:
         print(f"{row['dim']:>3} {row['target']:>9}: failed: {row['error']}")
         return
     print(f"{row['dim']:>3} {row['n_fluid']:>9} {row['n_wall']:>8} {_fmt_rate(row['particle_steps_per_s']):>13} "
           f"{_fmt_rate(row['fluid_particle_steps_per_s']):>7} {_fmt_rate(row['wall_particle_steps_per_s']):>7} "
           f"{row['step_ms']:>8.2f} {row['compile_s']:>11.1f}s {row.get('compile_warm_s') or math.nan:>5.1f}s "
-          f"{row['peak_rss_mib']:>9.0f}" + (f"  PPE iters {row['ppe_iterations_mean']:.1f}" if row.get("ppe_iterations_mean") else ""))
+          f"{row['peak_rss_mib']:>9.0f} {row.get('loops', '-'):>8}" + (f"  PPE iters {row['ppe_iterations_mean']:.1f}" if row.get("ppe_iterations_mean") else ""))
     sys.stdout.flush()
 
 

@@ -149,11 +149,12 @@ class NeighborSearch:
 
     # ------------------------------------------------------------------ public API
 
-    def build(self, x, fields: Sequence = ()) -> None:
+    def build(self, x, fields: Sequence = (), serial: bool = False) -> None:
         """Wrap, sort particles by cell (permuting `x` and `fields` alike) and build neighbour lists.
 
         The permutation of a given (x, fields) set is compiled into one kernel the first time that set
-        is seen; on the CPU and Vulkan the whole build is then a single launch.
+        is seen; on the CPU and Vulkan the whole build is then a single launch. `serial`: every loop on
+        one thread (a solver's choice for small scenes on the CPU; the lists are the same).
         """
         key = (id(x),) + tuple(id(f) for f in fields)
         binding = self._bindings.get(key)
@@ -169,9 +170,9 @@ class NeighborSearch:
         if self._use_executor:
             self._assign_cells(x)
             self._prefix_sum()
-            binding.sort_permute_find()
+            binding.sort_permute_find(serial)
         else:
-            binding.build_all()
+            binding.build_all(serial)
         self._stats_cache = None
 
     def max_count(self) -> int:
@@ -270,22 +271,25 @@ class NeighborSearch:
 
     @ti.kernel
     def _assign_cells(self, x: ti.template()):
-        self._assign_cells_pass(x)
+        self._assign_cells_pass(x, False)
 
     @ti.kernel
     def _scan_kernel(self):
-        self._scan_pass()
+        self._scan_pass(False)
 
     @ti.kernel
     def _sort_by_cell(self):
-        self._sort_pass()
+        self._sort_pass(False)
 
+    # Each pass takes `serial` (a compile-time flag): all its loops then run on one thread.
     @ti.func
-    def _assign_cells_pass(self, x: ti.template()):
+    def _assign_cells_pass(self, x: ti.template(), serial: ti.template()):
         self._stats[0] = 0
         self._stats[1] = 0
+        ti.loop_config(serialize=serial)
         for c in range(self.total_cells):
             self._cell_count[c] = 0
+        ti.loop_config(serialize=serial)
         for i in range(self.n):
             xi = self.wrap(x[i])
             if ti.static(self._any_periodic):
@@ -305,8 +309,9 @@ class NeighborSearch:
             self._slot_in_cell[i] = ti.atomic_add(self._cell_count[c], 1)
 
     @ti.func
-    def _scan_pass(self):
+    def _scan_pass(self, serial: ti.template()):
         block = ti.static(self._scan_block)
+        ti.loop_config(serialize=serial)
         for b in range(self._scan_blocks):
             s = 0
             for c in range(b * block, ti.min((b + 1) * block, self.total_cells)):
@@ -319,6 +324,7 @@ class NeighborSearch:
                 self.cell_start[self.total_cells] = 0
             self._block_sum[b] = self.cell_start[self.total_cells]
             self.cell_start[self.total_cells] += s
+        ti.loop_config(serialize=serial)
         for b in range(self._scan_blocks):
             running = self._block_sum[b]
             for c in range(b * block, ti.min((b + 1) * block, self.total_cells)):
@@ -332,12 +338,14 @@ class NeighborSearch:
         self.cell_start[self.total_cells] = inclusive[self.total_cells - 1]
 
     @ti.func
-    def _sort_pass(self):
+    def _sort_pass(self, serial: ti.template()):
+        ti.loop_config(serialize=serial)
         for i in range(self.n):
             c = self._unsorted_cell[i]
             self.order[self.cell_start[c] + self._slot_in_cell[i]] = i
         # slots inside a cell were handed out by atomics in thread order: sort them by previous
         # index (insertion sort; cells hold a handful of particles and are mostly sorted already)
+        ti.loop_config(serialize=serial)
         for c in range(self.total_cells):
             begin = self.cell_start[c]
             end = self.cell_start[c + 1]
@@ -348,6 +356,7 @@ class NeighborSearch:
                     self.order[m] = self.order[m - 1]
                     m -= 1
                 self.order[m] = v
+        ti.loop_config(serialize=serial)
         for k in range(self.n):
             self.cell_id[k] = self._unsorted_cell[self.order[k]]
 
@@ -445,7 +454,8 @@ class NeighborSearch:
         return found
 
     @ti.func
-    def _find_pass(self, x: ti.template()):
+    def _find_pass(self, x: ti.template(), serial: ti.template()):
+        ti.loop_config(serialize=serial)
         for i in range(self.n):
             found = self._gather_neighbors(x, i)
             self.count[i] = ti.min(found, self.max_neighbors)
@@ -469,39 +479,43 @@ class _Binding:
         self.other = tuple(k for k, f in enumerate(self.fields) if len(f.shape) != 1)
 
     @ti.func
-    def permute_pass(self):
+    def permute_pass(self, serial: ti.template()):
         """Apply `order` to x and every bound field (gather into scratch, copy back)."""
         ns = self.ns
+        ti.loop_config(serialize=serial)
         for i in range(ns.n):
             j = ns.order[i]
             for k in ti.static(self.per_particle):
                 self.tmps[k][i] = self.fields[k][j]
+        ti.loop_config(serialize=serial)
         for i in range(ns.n):
             for k in ti.static(self.per_particle):
                 self.fields[k][i] = self.tmps[k][i]
         for k in ti.static(self.other):
             f = ti.static(self.fields[k])
             tmp = ti.static(self.tmps[k])
+            ti.loop_config(serialize=serial)
             for I in ti.grouped(tmp):
                 J = I
                 J[0] = ns.order[I[0]]
                 tmp[I] = f[J]
+            ti.loop_config(serialize=serial)
             for I in ti.grouped(f):
                 f[I] = tmp[I]
 
     @ti.kernel
-    def build_all(self):
-        """Cells, prefix sum, sort, reorder, neighbour lists: each a parallel loop, run in order."""
+    def build_all(self, serial: ti.template()):
+        """Cells, prefix sum, sort, reorder, neighbour lists: each a loop (parallel unless `serial`), in order."""
         ns = self.ns
-        ns._assign_cells_pass(self.x)
-        ns._scan_pass()
-        ns._sort_pass()
-        self.permute_pass()
-        ns._find_pass(self.x)
+        ns._assign_cells_pass(self.x, serial)
+        ns._scan_pass(serial)
+        ns._sort_pass(serial)
+        self.permute_pass(serial)
+        ns._find_pass(self.x, serial)
 
     @ti.kernel
-    def sort_permute_find(self):
+    def sort_permute_find(self, serial: ti.template()):
         ns = self.ns
-        ns._sort_pass()
-        self.permute_pass()
-        ns._find_pass(self.x)
+        ns._sort_pass(serial)
+        self.permute_pass(serial)
+        ns._find_pass(self.x, serial)

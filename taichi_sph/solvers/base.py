@@ -16,9 +16,46 @@ from ..physics.eos import tait_density, tait_pressure
 from ..physics.walls import adami_wall_pressure, adami_wall_velocity
 
 
-@ti.data_oriented
+class LoopSchedule:
+    """Whether a solver's light particle loops run on one thread: decided on the CPU by timing steps.
+
+    Each parallel loop costs a thread-pool round (~70 us on this project's 2-core VM, a few us on an
+    idle many-core CPU): on that VM a whole WCSPH step of PySPH's 3.8k-particle dam break ran ~20%
+    faster on one thread, while large scenes need every core. The first steps alternate the two
+    schedules and the faster median over `probes` steps each wins (the first step of each is not
+    counted). Results do not depend on the choice: the loops concerned write per particle, and
+    reductions are max or integer counts. On a GPU the loops always run in parallel."""
+
+    def __init__(self, probes: int = 6) -> None:
+        cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
+        self.serial: bool | None = None if cpu else False
+        self.probes = probes
+        self.samples: dict[bool, list[float]] = {True: [], False: []}
+
+    @property
+    def deciding(self) -> bool:
+        return self.serial is None
+
+    def next(self) -> bool:
+        """The schedule for the next step."""
+        if self.serial is not None:
+            return self.serial
+        return len(self.samples[True]) <= len(self.samples[False])
+
+    def record(self, serial: bool, seconds: float) -> None:
+        """Wall time of a step run with `serial` (only while deciding)."""
+        self.samples[serial].append(seconds)
+        if min(len(v) for v in self.samples.values()) > self.probes:
+            median = {k: float(np.median(v[1:])) for k, v in self.samples.items()}
+            self.serial = median[True] < median[False]
+
+
 class SolverBase:
-    """Common state and passes. Subclasses implement `prepare()` and `step() -> dt`."""
+    """Common state and passes. Subclasses implement `prepare()` and `step() -> dt`.
+
+    Not decorated with `ti.data_oriented` itself: the concrete solvers are, and that decorator routes
+    every attribute access through a Python hook, once per decorated class in the hierarchy (twice
+    here would cost ~50 us per step of a small scene)."""
 
     name = "base"
     wall_wall_pairs = True  # solvers that never couple two wall particles set False: shorter wall lists
@@ -57,6 +94,9 @@ class SolverBase:
         if cfg.gravity_ramp > 0.0:
             self.gravity[None] = [0.0] * cfg.dim
         self.stats = ti.field(float, shape=5)
+        # host mirror the kernels copy the stats into (a numpy array passed as an ndarray argument: on
+        # the CPU no copy at all, where five scalar field reads cost ~80 us per step)
+        self.stats_host = np.zeros(5, dtype=np.float64 if cfg.precision == "f64" else np.float32)
         if f.walls:
             # Adami ghost velocity for no-slip viscous terms; prescribed wall velocity stays in v
             self.v_ghost = self.particles.add_vector() if f.no_slip else None
@@ -69,9 +109,9 @@ class SolverBase:
         self.dt_cap = math.inf  # the run loop caps the step so that t lands on t_end
 
     # -- neighbours ---------------------------------------------------------------------
-    def rebuild_neighbors(self) -> None:
-        """Cell sort, reorder every persistent field, rebuild neighbour lists."""
-        self.nsearch.build(self.particles.x, self.particles.persistent_fields)
+    def rebuild_neighbors(self, serial: bool = False) -> None:
+        """Cell sort, reorder every persistent field, rebuild neighbour lists (`serial`: on one thread)."""
+        self.nsearch.build(self.particles.x, self.particles.persistent_fields, serial)
         if self.x_ref is not None:
             self.x_ref.copy_from(self.particles.x)
         self.builds += 1
@@ -103,18 +143,20 @@ class SolverBase:
         self.adami_wall_pass()
 
     @ti.kernel
-    def reduce_stats(self):
+    def reduce_stats(self, out: ti.types.ndarray()):
         self.stats_pass()
+        self.export_stats(out)
 
     # Passes are @ti.func with one top-level loop each; a kernel that calls several in a row runs them
     # one after the other, each in parallel (one launch instead of several).
     @ti.func
-    def summation_density_pass(self):
+    def summation_density_pass(self, serial: ti.template() = False):
         """rho_a = (m_a W(0) + sum_b m_b W_ab) / S over fluid and wall neighbours (fluid particles only),
         S = sum_b V W_ab on the full initial lattice (1.0105 for Wendland C2 at h = 1.3 dx): a particle
         inside the lattice reads its initial density, not 1% more (which the EOS turns into ~7% of B)."""
         P = self.particles
         NS = self.nsearch
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 xa = P.x[a]
@@ -134,18 +176,20 @@ class SolverBase:
         return p
 
     @ti.func
-    def tait_pass(self):
+    def tait_pass(self, serial: ti.template() = False):
         """Tait pressure for every fluid particle."""
         P = self.particles
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 P.p[a] = self.tait(P.rho[a])
 
     @ti.func
-    def adami_wall_pass(self):
+    def adami_wall_pass(self, serial: ti.template() = False):
         """Wall pressure (and density, and no-slip ghost velocity) from the fluid around each wall particle."""
         P = self.particles
         NS = self.nsearch
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if P.kind[a] == WALL:
                 xa = P.x[a]
@@ -188,6 +232,13 @@ class SolverBase:
                 self.accumulate_stats(a)
 
     @ti.func
+    def export_stats(self, out: ti.template()):
+        """out[:] = stats (serial: 5 values)."""
+        ti.loop_config(serialize=True)
+        for s in range(5):
+            out[s] = self.stats[s]
+
+    @ti.func
     def reset_stats(self):
         ti.loop_config(serialize=True)  # 5 values: a serial task, no thread-pool wake-up (~70 us here)
         for s in range(5):
@@ -214,10 +265,10 @@ class SolverBase:
         ti.atomic_max(self.stats[4], self.displacement_since_build(a))
 
     def read_stats(self, reduce: bool = True) -> dict:
-        """Host copy of the stats (reduced now unless a fused kernel just did it)."""
+        """The stats as a dict (reduced now, unless a fused kernel just did it and exported them)."""
         if reduce:
-            self.reduce_stats()
-        s = [self.stats[i] for i in range(5)]  # five scalar reads beat a parallel copy kernel for tiny scenes
+            self.reduce_stats(self.stats_host)
+        s = self.stats_host
         return {"max_speed": float(s[0]), "max_acc": float(s[1]), "max_density_error": float(s[2]),
                 "non_finite": int(s[3]), "max_displacement": float(s[4])}
 
@@ -236,11 +287,12 @@ class SolverBase:
                     P.x[a][d] = 2.0 * hi - P.x[a][d]
                     P.v[a][d] = -self.restitution * P.v[a][d]
 
-    def update_body_force(self) -> None:
-        """Gravity ramp: g(t) = g (1 - cos(pi t / t_ramp)) / 2 for t < t_ramp."""
+    def update_body_force(self, t: float | None = None) -> None:
+        """Gravity ramp at time t (default: now): g(t) = g (1 - cos(pi t / t_ramp)) / 2 for t < t_ramp."""
         ramp = self.cfg.gravity_ramp
         if ramp > 0.0 and self.features.gravity:
-            factor = 0.5 * (1.0 - math.cos(math.pi * min(self.t / ramp, 1.0)))
+            t = self.t if t is None else t
+            factor = 0.5 * (1.0 - math.cos(math.pi * min(t / ramp, 1.0)))
             self.gravity[None] = [factor * g for g in self.cfg.gravity_vector]
 
     # -- time step --------------------------------------------------------------------------

@@ -4,6 +4,8 @@ Terms a scene does not use are compiled out with `ti.static` from the frozen fea
 """
 
 
+import time
+
 import numpy as np
 import taichi as ti
 
@@ -12,7 +14,7 @@ from ..geometry import FLUID, WALL, ParticleArrays
 from ..physics.density import continuity_rate, hydrostatic_density_difference, molteni_diffusion
 from ..physics.momentum import (monaghan_tensile_correction, monaghan_viscosity, morris_laminar_viscosity,
                                 symmetric_pressure_gradient)
-from .base import SolverBase
+from .base import LoopSchedule, SolverBase
 from .shifting import ParticleShifting
 
 
@@ -36,26 +38,32 @@ class WCSPHSolver(SolverBase):
         self.tc_epsilon, self.tc_n = tc.epsilon, tc.n
         self.w_dx = float(self.kernel.w_np(np.array([self.dx]))[0])
         self.shifting = ParticleShifting(self, cfg.shifting.coefficient) if f.shifting else None
-        self.last_dt = 0.0
+        self.schedule = LoopSchedule()
 
     # -- the pair loop ------------------------------------------------------------------
     @ti.kernel
-    def wcsph_rates(self):
-        """One launch: (summation density + Tait EOS), Adami walls, forces + delta-SPH + stats.
+    def wcsph_rates(self, stats_out: ti.types.ndarray(), serial: ti.template()):
+        self.rates_pass(stats_out, serial)
+
+    @ti.func
+    def rates_pass(self, stats_out: ti.template(), serial: ti.template()):
+        """(Summation density + Tait EOS), Adami walls, forces + delta-SPH + stats (copied to stats_out).
         With continuity density the pressure is already current: the drift applies the EOS."""
         self.reset_stats()
         if ti.static(self.features.density == "summation"):
-            self.summation_density_pass()
-            self.tait_pass()
+            self.summation_density_pass(serial)
+            self.tait_pass(serial)
         if ti.static(self.features.walls):
-            self.adami_wall_pass()
-        self.wcsph_forces_pass()
+            self.adami_wall_pass(serial)
+        self.wcsph_forces_pass(serial)
+        self.export_stats(stats_out)
 
     @ti.func
-    def wcsph_forces_pass(self):
+    def wcsph_forces_pass(self, serial: ti.template() = False):
         """acc_a from every neighbour (pressure, viscosities, body force) and the delta-SPH density diffusion."""
         P = self.particles
         NS = self.nsearch
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 xa, va, rho_a, p_a = P.x[a], P.v[a], P.rho[a], P.p[a]
@@ -101,12 +109,13 @@ class WCSPHSolver(SolverBase):
                 self.accumulate_stats(a)
 
     @ti.func
-    def continuity_pass(self, dt_kick: float):
+    def continuity_pass(self, dt_kick: float, serial: ti.template()):
         """drho_a = sum_b m_b (v_a - v_b) . grad_a W_ab with the kicked velocities v + dt_kick a (formed
         here; the drift stores them), so that density (a position-like variable) drifts with the new
         velocity: the scheme stays symplectic for sound waves."""
         P = self.particles
         NS = self.nsearch
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 xa = P.x[a]
@@ -115,37 +124,44 @@ class WCSPHSolver(SolverBase):
                 for k in range(NS.count[a]):
                     b = NS.neighbors[a, k]
                     r_ab = NS.pair_vector(xa, P.x[b])
+                    r = r_ab.norm()
                     vb = P.v[b]
                     if P.kind[b] == FLUID:
                         vb += dt_kick * P.acc[b]
-                    drho += continuity_rate(P.mass[b], va - vb, self.kernel.grad_w(r_ab, r_ab.norm()))
+                    drho += continuity_rate(P.mass[b], va - vb, self.kernel.grad_w(r_ab, r))
                 self.drho[a] = drho
 
     @ti.kernel
-    def kick(self, dt: float):
-        self.kick_pass(dt)
+    def kick(self, dt: float, serial: ti.template()):
+        self.kick_pass(dt, serial)
 
     @ti.kernel
-    def kick_continuity_drift(self, dt_kick: float, dt: float):
-        """One launch, two particle loops: drho with the kicked v (continuity); then per particle
-        v += dt_kick a, x, rho += dt (...). (A separate kick loop cost a thread-pool round per step.)"""
-        if ti.static(self.features.density == "continuity"):
-            self.continuity_pass(dt_kick)
-        self.drift_pass(dt_kick, dt)
+    def kick_continuity_drift(self, dt_kick: float, dt: float, serial: ti.template()):
+        self.kick_continuity_drift_pass(dt_kick, dt, serial)
 
     @ti.func
-    def kick_pass(self, dt: float):
+    def kick_continuity_drift_pass(self, dt_kick: float, dt: float, serial: ti.template()):
+        """drho with the kicked v (continuity); then per particle v += dt_kick a, x, rho += dt (...).
+        (A separate kick loop cost a thread-pool round per step.)"""
+        if ti.static(self.features.density == "continuity"):
+            self.continuity_pass(dt_kick, serial)
+        self.drift_pass(dt_kick, dt, serial)
+
+    @ti.func
+    def kick_pass(self, dt: float, serial: ti.template()):
         """v += dt a (fluid)."""
         P = self.particles
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 P.v[a] += dt * P.acc[a]
 
     @ti.func
-    def drift_pass(self, dt_kick: float, dt: float):
+    def drift_pass(self, dt_kick: float, dt: float, serial: ti.template()):
         """v += dt_kick a; x += dt v; rho += dt (drho + delta-SPH diffusion) for continuity density;
         reflect at faces."""
         P = self.particles
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 P.v[a] += dt_kick * P.acc[a]
@@ -160,46 +176,70 @@ class WCSPHSolver(SolverBase):
                     self.reflect(a)
 
     # -- one step ---------------------------------------------------------------------------
-    def evaluate_forces(self, dt_since: float = 0.0) -> None:
-        """Neighbours (if needed), then walls, accelerations and stats in one launch.
-
-        Lists are rebuilt when a particle may have moved skin/2 since the last build:
-        bound = last measured displacement + dt (|v|max + dt |a|max) (+ the shifting cap)."""
-        if self.builds == 0:
-            self.rebuild_neighbors()
-        else:
-            s = self.stats_now
-            bound = s["max_displacement"] + dt_since * (s["max_speed"] + dt_since * s["max_acc"])
-            if self.shifting is not None:
-                bound += self.shifting.max_shift
-            self.maybe_rebuild_neighbors(bound)
-        self.wcsph_rates()
-        self.stats_now = self.read_stats(reduce=False)
+    def needs_rebuild(self, dt: float) -> bool:
+        """Whether a drift by dt may take a particle skin/2 from where the lists were built:
+        bound = displacement at the last force evaluation + dt (|v|max + dt |a|max) (+ the shifting cap)."""
+        if self.x_ref is None:
+            return True
+        s = self.stats_now
+        bound = s["max_displacement"] + dt * (s["max_speed"] + dt * s["max_acc"])
+        if self.shifting is not None:
+            bound += self.shifting.max_shift
+        return 2.0 * bound >= self.skin
 
     def prepare(self) -> None:
+        """Pressure, neighbour lists, then accelerations and stats of the initial state.
+
+        While the loop schedule is undecided, every step kernel is compiled here in both variants (each
+        run once on the initial state, which a zero step leaves as it is), so that compiling counts
+        as start-up and not as the probe steps' time."""
         self.tait_equation_of_state()
-        self.evaluate_forces()
+        self.update_body_force(self.t)
+        variants = (True, False) if self.schedule.deciding else (self.schedule.next(),)
+        for serial in variants:
+            self.rebuild_neighbors(serial)
+            self.kick_continuity_drift(0.0, 0.0, serial)
+            if self.features.integrator == "leapfrog":
+                self.kick(0.0, serial)
+            self.wcsph_rates(self.stats_host, serial)
+        self.stats_now = self.read_stats(reduce=False)
 
     def step(self) -> float:
-        """Advance one step; returns the dt used.
+        """Advance one step; returns the dt used. Forces of the new state end the step (their stats
+        choose the next dt and tell whether the lists stay valid for the next drift).
 
         symplectic_euler: v^{n+1} = v^n + dt a^n; rho^{n+1} = rho^n + dt drho(v^{n+1}); x^{n+1} = x^n + dt v^{n+1}.
         leapfrog (kick-drift-kick): half kick with a^n, drift x and rho with v^{n+1/2}, forces at n+1, half kick.
         """
-        self.update_body_force()
-        if self.step_count > 0 and self.features.integrator == "symplectic_euler":
-            self.evaluate_forces(self.last_dt)
+        schedule = self.schedule
+        serial = schedule.next()
+        t0 = time.perf_counter() if schedule.deciding else 0.0
         s = self.stats_now
         dt = self.choose_dt(s["max_speed"], s["max_acc"], self.c0)
-        if self.features.integrator == "leapfrog":
-            self.kick_continuity_drift(0.5 * dt, dt)
-            self.evaluate_forces(dt)
-            self.kick(0.5 * dt)
-        else:
-            self.kick_continuity_drift(dt, dt)
-        if self.shifting is not None:
+        self.update_body_force(self.t + dt)  # the forces below act at the end of the step
+        leapfrog = self.features.integrator == "leapfrog"
+        dt_kick = 0.5 * dt if leapfrog else dt
+        shift_before_forces = self.shifting is not None and not leapfrog
+        rebuild = self.needs_rebuild(dt)
+        self.kick_continuity_drift(dt_kick, dt, serial)
+        if shift_before_forces:
             self.shifting.apply(dt)
-        self.last_dt = dt
+        if rebuild:
+            self.rebuild_neighbors(serial)
+        self.wcsph_rates(self.stats_host, serial)
+        if leapfrog:
+            self.kick(0.5 * dt, serial)
+        if leapfrog and self.shifting is not None:
+            self.shifting.apply(dt)
+        self.stats_now = self.read_stats(reduce=False)
+        if schedule.deciding:
+            ti.sync()
+            schedule.record(serial, time.perf_counter() - t0)
         self.t += dt
         self.step_count += 1
         return dt
+
+    def extra_summary(self) -> dict:
+        """Which loop schedule the step ran with (decided by timing on the CPU)."""
+        serial = self.schedule.serial
+        return {"loop_schedule": "undecided" if serial is None else ("serial" if serial else "parallel")}
