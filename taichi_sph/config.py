@@ -147,6 +147,9 @@ class ISPH:
                                         "flows, where a kernel-sum deficit is not expansion; off in closed boxes (one-sided source drifts)")
     artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor; None = wcsph.artificial_viscosity.alpha "
                                                          "(ISPH steps ~10x longer, so the same alpha damps differently)", minimum=0.0)
+    wall_clearance: float | None = opt(0.25, "kinematic wall condition: the speed toward a wall face is cut so that no fluid particle "
+                                             "comes closer than this to it (fluid starts dx/2 away); holds free-surface films, "
+                                             "which have no PPE pressure; None = off", unit="dx", minimum=0.0)
 
 
 @dataclass(frozen=True)

@@ -233,6 +233,44 @@ def lattice_neighbour_count(dim: int, dx: float, radius: float) -> int:
     return int(np.count_nonzero(lattice_distances(dim, dx, radius) < radius)) - 1
 
 
+def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each wall particle, the face of its wall body that it lies behind: unit normal n into the
+    fluid and offset s, so that y . n - s is a point's signed distance to that face (rows of fluid
+    particles are zero). wall_box: the inner face the particle is furthest outside of (a corner
+    particle is behind two; either bounds the fluid); wall_block: the nearest face, normal outward."""
+    dim = cfg.dim
+    normal = np.zeros((len(x), dim))
+    offset = np.zeros(len(x))
+    unassigned = kind == WALL
+    for body in cfg.bodies:
+        if body.type not in ("wall_box", "wall_block") or not unassigned.any():
+            continue
+        lo, hi = np.asarray(body.lo, float), np.asarray(body.hi, float)
+        y = x[unassigned]
+        if body.type == "wall_box":
+            thick = body.layers * cfg.particles.dx + 1e-9
+            inside_shell = np.all((y > lo - thick) & (y < hi + thick), axis=1)
+            # how far outside each face: columns (lo_0, hi_0, lo_1, hi_1, ...), normals +e_a / -e_a
+            depth = np.stack([c for a in range(dim) for c in (lo[a] - y[:, a], y[:, a] - hi[a])], axis=1)
+            if body.open_top:
+                depth[:, 2 * dim - 1] = -np.inf
+        else:
+            inside_shell = np.all((y > lo - 1e-9) & (y < hi + 1e-9), axis=1)
+            # a block's particle is behind the face it is nearest to (largest negative depth)
+            depth = -np.stack([c for a in range(dim) for c in (y[:, a] - lo[a], hi[a] - y[:, a])], axis=1)
+        face = np.argmax(depth, axis=1)
+        axis, upper = face // 2, face % 2 == 1
+        sign = np.where(upper, -1.0, 1.0) if body.type == "wall_box" else np.where(upper, 1.0, -1.0)
+        n = np.zeros_like(y)
+        n[np.arange(len(y)), axis] = sign
+        s = np.where(upper, hi[axis], lo[axis]) * sign
+        idx = np.flatnonzero(unassigned)[inside_shell]
+        normal[idx] = n[inside_shell]
+        offset[idx] = s[inside_shell]
+        unassigned[idx] = False
+    return normal, offset
+
+
 def lattice_kernel_sum(cfg: Config, w) -> float:
     """sum_b W(x_a - x_b) V_b over a full lattice (used to flag free-surface particles)."""
     dx = cfg.particles.dx

@@ -31,11 +31,11 @@ class ParticleFields:
         self.kind = ti.field(ti.i32, n)
         self.pid = ti.field(ti.i32, n)
         self._persistent = [self.v, self.rho, self.p, self.mass, self.kind, self.pid]
-        self.x.from_numpy(arrays.x.astype(_np_float()))
-        self.v.from_numpy(arrays.v.astype(_np_float()))
-        self.rho.from_numpy(arrays.rho.astype(_np_float()))
-        self.p.from_numpy(arrays.p.astype(_np_float()))
-        self.mass.from_numpy(arrays.mass.astype(_np_float()))
+        self.x.from_numpy(arrays.x.astype(np_float()))
+        self.v.from_numpy(arrays.v.astype(np_float()))
+        self.rho.from_numpy(arrays.rho.astype(np_float()))
+        self.p.from_numpy(arrays.p.astype(np_float()))
+        self.mass.from_numpy(arrays.mass.astype(np_float()))
         self.kind.from_numpy(arrays.kind.astype(np.int32))
         self.pid.from_numpy(np.arange(n, dtype=np.int32))
 
@@ -75,7 +75,7 @@ class ParticleFields:
         return out
 
 
-def _np_float():
+def np_float():
     return np.float64 if ti.lang.impl.current_cfg().default_fp == ti.f64 else np.float32
 
 

@@ -222,3 +222,69 @@ def test_density_source_corrects_compression_only():
     assert np.abs(sparse).max() < 1e-3 * np.abs(compressed).max()
     # off (the default, for closed boxes): the deficit is a source too
     assert np.abs(_interior_rhs(1.02, compression_only=False)).min() > 0.3
+
+
+def _jet_crossings(clearance):
+    """A 10 x 10 block shot at 3 m/s (no gravity) into the right wall of a closed box; returns the wall
+    crossings at t = 0.25 s and the smallest distance to any inner face (in dx) over the run."""
+    from taichi_sph.geometry import wall_crossings
+    from taichi_sph.simulation import make_solver
+    dx = 0.02
+    cfg = config_from_dict({
+        "name": "jet", "dim": 2, "solver": "isph",
+        "domain": {"lo": [-0.15, -0.15], "hi": [0.75, 0.75]},
+        "particles": {"dx": dx, "hdx": 2.0, "kernel": "wendland_c2"},
+        "fluid": {"reference_speed": 3.0},
+        "bodies": [{"type": "fluid_block", "lo": [0.1, 0.2], "hi": [0.3, 0.4], "velocity": [3.0, 0.0]},
+                   {"type": "wall_box", "lo": [0.0, 0.0], "hi": [0.6, 0.6], "layers": 4, "open_top": False}],
+        "walls": {"slip": "free_slip"}, "isph": {"wall_clearance": clearance},
+        "time": {"t_end": 0.3}})
+    solver = make_solver(cfg, build_particles(cfg))
+    solver.prepare()
+    closest = math.inf
+    while solver.t < 0.25:
+        solver.step()
+        st = solver.host_state()
+        x = st["x"][st["kind"] == 0]
+        closest = min(closest, float(min(x.min(), (0.6 - x).min())) / dx)
+    return wall_crossings(st["x"], st["kind"], cfg), closest, solver.extra_summary()
+
+
+def test_kinematic_wall_condition_holds_a_splash_off_the_walls():
+    """The splash runs up the far wall, along the lid and into the corners as a film of free-surface
+    particles, which have Dirichlet pressure: without the condition some end past the walls (measured:
+    3 particles, one 1.25 dx deep); with it none comes closer than the clearance (0.25 dx)."""
+    crossings_off, closest_off, _ = _jet_crossings(None)
+    assert crossings_off > 0 and closest_off < 0.0
+    crossings, closest, summary = _jet_crossings(0.25)
+    assert crossings == 0
+    assert closest > 0.24
+    assert summary["kinematic_walls"]["particle_steps_cut"] > 0
+
+
+def test_wall_face_planes_of_a_box_and_a_block():
+    from taichi_sph.geometry import wall_face_planes
+    cfg = config_from_dict({
+        "name": "planes", "dim": 2, "domain": {"lo": [-0.2, -0.2], "hi": [1.2, 1.2]},
+        "particles": {"dx": 0.1}, "fluid": {"reference_speed": 1.0},
+        "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.3, 0.3]},
+                   {"type": "wall_block", "lo": [0.6, 0.0], "hi": [0.8, 0.4]},
+                   {"type": "wall_box", "lo": [0.0, 0.0], "hi": [1.0, 1.0], "layers": 2}]})
+    arrays = build_particles(cfg)
+    normal, offset = wall_face_planes(cfg, arrays.x, arrays.kind)
+    walls = arrays.kind == 1
+    assert np.allclose(np.linalg.norm(normal[walls], axis=1), 1.0)
+    assert np.all(normal[~walls] == 0.0)
+    distance = np.einsum("ij,ij->i", arrays.x, normal) - offset
+    # every wall particle lies behind its face (depth dx/2, 3dx/2, ...), every fluid particle in front
+    assert np.all(distance[walls] < 0.0)
+    for i in np.flatnonzero(walls):
+        fluid_side = np.einsum("ij,j->i", arrays.x[~walls], normal[i]) - offset[i]
+        box_wall = not (0.6 < arrays.x[i, 0] < 0.8 and 0.0 < arrays.x[i, 1] < 0.4)
+        if box_wall:  # the tank's faces bound all of its fluid
+            assert np.all(fluid_side > 0.0)
+    floor = walls & np.isclose(arrays.x[:, 1], -0.05) & (arrays.x[:, 0] > 0.2) & (arrays.x[:, 0] < 0.5)
+    assert np.allclose(normal[floor], [0.0, 1.0]) and np.allclose(offset[floor], 0.0)
+    block_left = walls & np.isclose(arrays.x[:, 1], 0.25) & np.isclose(arrays.x[:, 0], 0.65)
+    assert block_left.sum() == 1
+    assert np.allclose(normal[block_left], [-1.0, 0.0]) and np.allclose(offset[block_left], -0.6)

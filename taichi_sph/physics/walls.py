@@ -1,4 +1,5 @@
-"""Wall boundary: Adami, Hu & Adams (2012) pressure and velocity extrapolation to wall particles."""
+"""Wall boundary: Adami, Hu & Adams (2012) pressure and velocity extrapolation to wall particles, and the
+kinematic no-penetration condition for particles the pressure cannot hold off a wall."""
 
 import taichi as ti
 
@@ -19,3 +20,19 @@ def adami_wall_velocity(v_wall, sum_vw, sum_w: float):
     if sum_w > 0.0:
         v = 2.0 * v_wall - sum_vw / sum_w
     return v
+
+
+@ti.func
+def kinematic_wall_condition(v, v_wall, normal, distance: float, clearance: float, dt: float):
+    """No flow through a wall face (v_n = v_wall,n), as a limit on the approach speed: the particle at
+    `distance` from the face (unit `normal` into the fluid) may approach it, relative to the wall, by at
+    most distance - clearance in this step: (v - v_wall) . n >= -max(distance - clearance, 0) / dt.
+    Tangential velocity is untouched and a particle is never pushed away. Returns (v, 1 if it cut)."""
+    out = v
+    cut = 0
+    floor = -ti.max(distance - clearance, 0.0) / dt
+    vn = (v - v_wall).dot(normal)
+    if vn < floor:
+        out = v + (floor - vn) * normal
+        cut = 1
+    return out, cut
