@@ -37,6 +37,8 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
    exact for a linear pressure at a surface or a corner, independent of the pressure level. The
    symmetric (momentum-conserving) form was tried first: at a resting surface it is 3.8% out of
    balance, and the tank at rest paired particles and blew up within 10 steps of dt = 0.016 s.
+   Kinematic wall condition (`isph.wall_clearance`): the speed toward each wall face within reach is cut
+   so that no particle comes closer than the clearance (free-surface films have no PPE pressure).
 6. Particle shifting (on by default for ISPH).
 
 Divergence and Laplacian are divided by their value on the initial lattice for a linear (quadratic)
