@@ -116,12 +116,6 @@ class SolverBase:
             self.x_ref.copy_from(self.particles.x)
         self.builds += 1
 
-    def maybe_rebuild_neighbors(self, max_displacement: float) -> None:
-        """Rebuild unless every particle is known to be within skin / 2 of where the lists were built
-        (then no pair can have crossed from beyond support + skin to inside the support)."""
-        if self.x_ref is None or 2.0 * max_displacement >= self.skin:
-            self.rebuild_neighbors()
-
     @ti.func
     def displacement_since_build(self, a):
         d = 0.0

@@ -43,11 +43,8 @@ class WCSPHSolver(SolverBase):
     # -- the pair loop ------------------------------------------------------------------
     @ti.kernel
     def wcsph_rates(self, stats_out: ti.types.ndarray(), serial: ti.template()):
-        self.rates_pass(stats_out, serial)
-
-    @ti.func
-    def rates_pass(self, stats_out: ti.template(), serial: ti.template()):
-        """(Summation density + Tait EOS), Adami walls, forces + delta-SPH + stats (copied to stats_out).
+        """One launch: (summation density + Tait EOS), Adami walls, forces + delta-SPH + stats (copied to
+        stats_out); `serial`: every loop on one thread (see LoopSchedule).
         With continuity density the pressure is already current: the drift applies the EOS."""
         self.reset_stats()
         if ti.static(self.features.density == "summation"):
@@ -59,7 +56,7 @@ class WCSPHSolver(SolverBase):
         self.export_stats(stats_out)
 
     @ti.func
-    def wcsph_forces_pass(self, serial: ti.template() = False):
+    def wcsph_forces_pass(self, serial: ti.template()):
         """acc_a from every neighbour (pressure, viscosities, body force) and the delta-SPH density diffusion."""
         P = self.particles
         NS = self.nsearch
@@ -137,11 +134,7 @@ class WCSPHSolver(SolverBase):
 
     @ti.kernel
     def kick_continuity_drift(self, dt_kick: float, dt: float, serial: ti.template()):
-        self.kick_continuity_drift_pass(dt_kick, dt, serial)
-
-    @ti.func
-    def kick_continuity_drift_pass(self, dt_kick: float, dt: float, serial: ti.template()):
-        """drho with the kicked v (continuity); then per particle v += dt_kick a, x, rho += dt (...).
+        """One launch: drho with the kicked v (continuity); then per particle v += dt_kick a, x, rho += dt (...).
         (A separate kick loop cost a thread-pool round per step.)"""
         if ti.static(self.features.density == "continuity"):
             self.continuity_pass(dt_kick, serial)
