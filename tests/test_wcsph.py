@@ -218,18 +218,20 @@ def test_loop_schedule_gives_identical_results():
 
 def test_loop_schedule_probes_then_keeps_the_faster():
     from taichi_sph.solvers.base import LoopSchedule
-    schedule = LoopSchedule(probes=3)
+    schedule = LoopSchedule(probes=3, warmup=2)
     assert schedule.deciding  # the tests run on the CPU
     times = {True: 2.0, False: 1.0}
     seen = []
     while schedule.deciding:
         serial = schedule.next()
         seen.append(serial)
-        schedule.record(serial, times[serial] + (5.0 if len(seen) <= 2 else 0.0))  # first of each: slow
-    assert seen.count(True) == seen.count(False) == 4
+        warm = len([s for s in seen if s == serial]) <= 2
+        schedule.record(serial, times[serial] + (5.0 if warm and not serial else 0.0))  # warm-up not counted
+    assert seen == [True] * 5 + [False] * 5  # one schedule, then the other
     assert schedule.serial is False and schedule.next() is False
     solver = _dam_break_solver(None)
-    for _ in range(2 * (solver.schedule.probes + 1)):
+    probe = solver.schedule.warmup + solver.schedule.probes
+    for _ in range(2 * probe):
         assert solver.schedule.deciding
         solver.step()
     assert not solver.schedule.deciding
