@@ -63,6 +63,7 @@ def worker(spec: dict) -> dict:
     init_taichi(cfg.arch, cfg.precision)
     arrays = build_particles(cfg)
     solver = make_solver(cfg, arrays)
+    schedule = getattr(solver, "schedule", None)  # WCSPH's loop schedule (ISPH has none)
     t0 = time.perf_counter()
     solver.prepare()
     solver.step()
@@ -76,8 +77,7 @@ def worker(spec: dict) -> dict:
         stepping = time.perf_counter() - t1
         out.update(steps=solver.step_count, stepping_s=stepping, t=solver.t)
     else:
-        schedule = getattr(solver, "schedule", None)  # time the steady state: after the loop-schedule probe
-        warmup = 0
+        warmup = 0  # time the steady state: after the loop-schedule probe
         while warmup < 3 or (schedule is not None and schedule.deciding):
             solver.step()
             warmup += 1
@@ -93,7 +93,6 @@ def worker(spec: dict) -> dict:
     out["particle_steps_per_s"] = arrays.n / per_step
     out["fluid_particle_steps_per_s"] = arrays.n_fluid / per_step
     out["wall_particle_steps_per_s"] = arrays.n_wall / per_step
-    schedule = getattr(solver, "schedule", None)
     out["loops"] = "-" if schedule is None or schedule.serial is None else ("serial" if schedule.serial else "parallel")
     out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
     extra = solver.extra_summary()

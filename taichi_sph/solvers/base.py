@@ -11,7 +11,7 @@ from ..features import Features
 from ..geometry import FLUID, WALL, ParticleArrays, lattice_kernel_sum, max_neighbors_for, tait_b
 from ..kernels import make_kernel
 from ..neighbors import NeighborSearch
-from ..particles import ParticleFields
+from ..particles import ParticleFields, np_float
 from ..physics.eos import tait_density, tait_pressure
 from ..physics.walls import adami_wall_pressure, adami_wall_velocity
 
@@ -98,7 +98,7 @@ class SolverBase:
         self.stats = ti.field(float, shape=5)
         # host mirror the kernels copy the stats into (a numpy array passed as an ndarray argument: on
         # the CPU no copy at all, where five scalar field reads cost ~80 us per step)
-        self.stats_host = np.zeros(5, dtype=np.float64 if cfg.precision == "f64" else np.float32)
+        self.stats_host = np.zeros(5, dtype=np_float())
         if f.walls:
             # Adami ghost velocity for no-slip viscous terms; prescribed wall velocity stays in v
             self.v_ghost = self.particles.add_vector() if f.no_slip else None
