@@ -129,8 +129,20 @@ class WCSPH:
 
 
 @dataclass(frozen=True)
+class Multigrid:
+    smoother_omega: float = opt(0.9, "weighted-Jacobi factor of the V-cycle's smoothing sweeps (every level)", positive=True)
+    coarse_scale: float = opt(2.0, "scale s of the coarse-grid correction x += s P y (piecewise-constant aggregates "
+                                   "make each Galerkin level ~2x too stiff; any s > 0 keeps CG valid)", positive=True)
+    coarsest_sweeps: int = opt(8, "symmetric Gauss-Seidel sweeps on the coarsest level", minimum=1)
+
+
+@dataclass(frozen=True)
 class PPE:
-    solver: str = opt("cg", "pressure Poisson solver, matrix-free", choices=("cg", "jacobi"))
+    solver: str = opt("cg", "pressure Poisson solver, matrix-free: CG preconditioned by a multigrid V-cycle on the neighbour "
+                            "cells (mgcg), by Jacobi (cg), weighted Jacobi (jacobi), or auto (mgcg from "
+                            "isph.ppe.mgcg_from fluid particles, cg below)", choices=("auto", "mgcg", "cg", "jacobi"))
+    mgcg_from: int = opt(0, "fluid-particle count from which solver 'auto' takes mgcg", minimum=0)
+    multigrid: Multigrid = opt(factory=Multigrid, doc="mgcg's V-cycle")
     tolerance: float = opt(1e-4, "relative residual ||b - A p|| / ||b|| to stop at", positive=True)
     max_iterations: int = opt(1000, "iteration cap; reaching it is a warning in the summary", minimum=1)
     omega: float = opt(0.6, "weighted-Jacobi relaxation factor", positive=True)

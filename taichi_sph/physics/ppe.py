@@ -19,12 +19,14 @@ import time
 
 import taichi as ti
 
+from .multigrid import CellMultigrid
+
 # role of a particle in the system
 UNKNOWN, DIRICHLET, NOT_IN_PPE = 0, 1, 2
 # slots of the scalar field the kernels reduce into
-RR, BB, RZ, RZ_NEW, PQ, N_UNKNOWN, N_DIRICHLET, SUM_B, SUM_P = range(9)
+RR, BB, RZ, RZ_NEW, PQ, N_UNKNOWN, N_DIRICHLET, SUM_B, SUM_P, SUM_Z, SUM_R = range(11)
 # iterations between two read-backs of the residual norm
-CHECK_EVERY = {"cg": 2, "jacobi": 10}
+CHECK_EVERY = {"mgcg": 2, "cg": 2, "jacobi": 10}
 # the first block of CG iterations long enough to time both loop schedules (see `_choose_schedule`)
 SCHEDULE_PROBE = 8
 PPE_SOLVERS = tuple(CHECK_EVERY)
@@ -101,7 +103,7 @@ class MatrixFreePPE:
     """
 
     def __init__(self, p, nsearch, n: int, max_neighbors: int, solver: str, tolerance: float, max_iterations: int,
-                 omega: float) -> None:
+                 omega: float, multigrid=None) -> None:
         if solver not in PPE_SOLVERS:
             raise ValueError(f"unknown PPE solver '{solver}'; allowed: {', '.join(PPE_SOLVERS)}")
         self.p = p
@@ -117,11 +119,18 @@ class MatrixFreePPE:
         self.diag_dirichlet = ti.field(float, n)
         self.coeff = ti.field(float, (n, max_neighbors))
         self.res = ti.field(float, n)
-        if solver == "cg":
+        if solver in ("cg", "mgcg"):
             self.z = ti.field(float, n)
             self.d = ti.field(float, n)
             self.q = ti.field(float, n)
-        self.scalars = ti.field(float, 9)
+        self.mg = None
+        self.pinned = False  # the system being solved has no Dirichlet particle
+        if solver == "mgcg":
+            self.z0 = ti.field(float, n)  # the V-cycle's pre-smoothed particle iterate
+            mgs = multigrid
+            self.mg = CellMultigrid(self, mgs.smoother_omega, mgs.coarse_scale, mgs.coarsest_sweeps, UNKNOWN,
+                                    (RZ_NEW, SUM_Z, SUM_R))
+        self.scalars = ti.field(float, 11)
         # CPU: whether the iteration loops run on one thread (see `_choose_schedule`); elsewhere parallel
         self.serial: bool | None = None if ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64) else False
         self.schedule_timings: dict[str, float] = {}
@@ -227,6 +236,11 @@ class MatrixFreePPE:
                 self.z[a] = z
                 ti.atomic_add(self.scalars[RR], r * r)
                 ti.atomic_add(self.scalars[RZ_NEW], r * z)
+        self.conjugate_direction(serial)
+
+    @ti.func
+    def conjugate_direction(self, serial: ti.template()):
+        """beta = rz_new / rz (0 at the start, rz = 0), d = z + beta d, q = A d = A z + beta q; d.q reduced."""
         beta = 0.0
         if self.scalars[RZ] > 0.0:
             beta = self.scalars[RZ_NEW] / self.scalars[RZ]
@@ -241,6 +255,81 @@ class MatrixFreePPE:
                 self.q[a] = q
                 ti.atomic_add(self.scalars[PQ], d * q)
 
+    @ti.kernel
+    def mgcg_residual(self, serial: ti.template()):
+        """r = b - A p, z0 = omega r / diag, then the V-cycle's restriction to the cells (see `mgcg_iteration`)."""
+        for s in ti.static((RR, RZ, RZ_NEW, PQ)):
+            self.scalars[s] = 0.0
+        ti.loop_config(serialize=serial)
+        for a in range(self.n):
+            r = 0.0
+            z0 = 0.0
+            if self.role[a] == UNKNOWN:
+                r = self.rhs[a] - self.apply(self.p, a)
+                z0 = self.mg.omega * r / self.diag[a]
+                ti.atomic_add(self.scalars[RR], r * r)
+            self.res[a] = r
+            self.z0[a] = z0
+            self.d[a] = 0.0
+            self.q[a] = 0.0
+        self.mg.restrict_particles(serial)
+
+    @ti.kernel
+    def mgcg_update(self, serial: ti.template()):
+        """alpha = rz / d.q;  p += alpha d;  r -= alpha q  (|r|^2 reduced);  z0 = omega r / diag; restriction."""
+        alpha = 0.0
+        if self.scalars[PQ] > 0.0:
+            alpha = self.scalars[RZ] / self.scalars[PQ]
+        self.scalars[RR] = 0.0
+        self.scalars[RZ_NEW] = 0.0
+        ti.loop_config(serialize=serial)
+        for a in range(self.n):
+            if self.role[a] == UNKNOWN:
+                self.p[a] += alpha * self.d[a]
+                r = self.res[a] - alpha * self.q[a]
+                self.res[a] = r
+                self.z0[a] = self.mg.omega * r / self.diag[a]
+                ti.atomic_add(self.scalars[RR], r * r)
+        self.mg.restrict_particles(serial)
+
+    @ti.kernel
+    def mgcg_direction(self, serial: ti.template(), pinned: ti.template()):
+        """z = the V-cycle's particle end (r.z reduced); beta = rz_new / rz; d = z + beta d; q = A z + beta q.
+        `pinned` (no Dirichlet particle): z is made zero-mean, z - mean(z) with r.z corrected by mean(z) sum(r):
+        the preconditioner acts on the range of A (f32 round-off leaves r a mean that the V-cycle's
+        constant-preserving coarse levels would otherwise feed into d, and CG then diverged below 1e-6)."""
+        if ti.static(pinned):
+            self.scalars[SUM_Z] = 0.0
+            self.scalars[SUM_R] = 0.0
+        self.mg.prolong_particles(serial, pinned)
+        if ti.static(pinned):
+            mean_z = self.scalars[SUM_Z] / self.scalars[N_UNKNOWN]
+            self.scalars[RZ_NEW] -= mean_z * self.scalars[SUM_R]
+            for a in range(self.n):
+                if self.role[a] == UNKNOWN:
+                    self.z[a] -= mean_z
+        self.conjugate_direction(serial)
+
+    def mgcg_start(self, serial: bool) -> None:
+        """r = b - A p, z = M r (the multigrid V-cycle), d = z, q = A d."""
+        self.mgcg_residual(serial)
+        self.mg.coarse_cycle(serial)
+        self.mgcg_direction(serial, self.pinned)
+
+    def mgcg_iteration(self, serial: bool) -> None:
+        """One multigrid-preconditioned CG iteration:
+
+            alpha = rz / d.q;  p += alpha d;  r -= alpha q                      (|r|^2 reduced)
+            z = M r                                                             (r.z reduced)
+            beta = rz_new / rz;  d = z + beta d;  q = A z + beta q              (d.q reduced)
+
+        Three kernels (the particle ends of the V-cycle ride with CG's vector updates) and two per cell
+        level; no host read-back.
+        """
+        self.mgcg_update(serial)
+        self.mg.coarse_cycle(serial)
+        self.mgcg_direction(serial, self.pinned)
+
     def solve(self, neumann_level: float = 0.0) -> tuple[int, float, bool]:
         """Iterate until |b - A p| <= tolerance |b| or max_iterations.
 
@@ -252,18 +341,23 @@ class MatrixFreePPE:
         n_unknown, pure_neumann = s[N_UNKNOWN], s[N_DIRICHLET] == 0
         if n_unknown == 0:
             return 0, 0.0, False
+        self.pinned = bool(pure_neumann)
         if pure_neumann:
             self.remove_rhs_mean()
         norm_b = math.sqrt(float(self.scalars[BB]))
         if norm_b == 0.0:  # the solution is p = 0 (or the level)
             self.fill_unknowns(neumann_level if pure_neumann else 0.0)
             return 0, 0.0, pure_neumann
-        iterate = self.cg_iteration if self.solver == "cg" else self.jacobi_iteration
+        iterate = {"mgcg": self.mgcg_iteration, "cg": self.cg_iteration, "jacobi": self.jacobi_iteration}[self.solver]
         check = CHECK_EVERY[self.solver]
         iterations = 0
         residual = math.inf
         if self.solver == "cg":
             self.cg_start()
+            residual = math.sqrt(float(self.scalars[RR])) / norm_b
+        elif self.solver == "mgcg":
+            self.mg.assemble(bool(self.serial))
+            self.mgcg_start(bool(self.serial))
             residual = math.sqrt(float(self.scalars[RR])) / norm_b
         while residual > self.tolerance and iterations < self.max_iterations:
             todo = min(check if self.serial is not None else max(check, SCHEDULE_PROBE),

@@ -1,0 +1,394 @@
+"""Aggregation multigrid on the neighbour cells: the preconditioner of `mgcg`, CG on the PPE (physics/ppe.py).
+
+Why: Jacobi-preconditioned CG needs iterations that grow like 1/dx (163 at 10k particles, ~570 at 100k on
+the 2D dam break), the signature of a one-level preconditioner. A V-cycle whose coarse levels remove the
+smooth error in O(1) sweeps makes the count nearly flat in N.
+
+Construction (chosen over a background-grid rediscretisation because every coarse operator is then exact
+algebra of the particle operator, with its Dirichlet free surface, Neumann walls and periodic wrap, and
+nothing has to be re-derived per boundary type):
+
+- level 0: the particles, A as stored by `MatrixFreePPE` (pair coefficients beside the neighbour list);
+- level 1: aggregates = the cells of the neighbour search (size = support radius, particles sorted by
+  cell), so a particle couples only to its own and the 3^dim surrounding cells; P is piecewise constant
+  (p_a = x_cell(a)) and A_1 = P^T A P, a 3^dim stencil per cell summed from the pair coefficients:
+      A_1[I, I] = sum_{a in I} A_aa,   A_1[I, J] = -sum_{a in I} sum_{b in J} coeff_ab;
+- level l+1: 2^dim cells of level l merged (an axis stops halving when a periodic axis would drop below 3
+  cells), A_{l+1} = P^T A_l P, again a 3^dim stencil; the hierarchy stops at <= COARSEST_CELLS cells.
+  Empty cells (air, walls) have a zero row and stay zero.
+
+One application z = M r of the symmetric V-cycle, from zero at every level:
+
+    x_l = omega D_l^-1 b_l                                   (pre-smoothing: one weighted-Jacobi sweep)
+    b_{l+1} = P^T (b_l - A_l x_l)                            (restriction: sum over the children)
+    x_l <- x_l + s P y_{l+1}                                 (coarse correction, s = `coarse_scale`)
+    y_l = x_l + omega D_l^-1 (b_l - A_l x_l)                 (post-smoothing, the same sweep)
+
+and on the coarsest level `coarsest_sweeps` symmetric Gauss-Seidel sweeps (forward then backward) from zero.
+As an operator M = S_bar + Q^T (s M_c) Q with S_bar = S + S^T - S^T A S the symmetrised smoother and
+Q = P^T (I - A S): S_bar is symmetric positive definite when the Jacobi sweep converges (omega
+lambda_max(D^-1 A) < 2, and lambda_max <= 2 for these diagonally dominant Laplacians), the second term is
+symmetric positive semi-definite whenever M_c is, and M_c is by induction (the symmetric Gauss-Seidel
+sweeps are). So CG stays valid for any s > 0. Piecewise-constant aggregation makes each Galerkin operator
+about twice as stiff as the operator rediscretised on the coarse grid (half the correction it should give:
+Braess 1995, Vanek 1995); s ~ 2 restores it (measured, see MultigridSettings in config.py).
+
+Pure Neumann systems (closed and periodic boxes) stay consistent: every restriction of a zero-sum residual
+has zero sum, and the constant null space of each level is left to the caller's zero-mean pinning.
+
+Everything runs inside the CG iteration's one Taichi kernel: every level's loops are unrolled at compile
+time (`ti.static`) with their sizes as constants, levels under SERIAL_CELLS cells run on one thread (a
+thread-pool round costs more than their work), and nothing is read back by the host.
+"""
+
+# No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
+import math
+from dataclasses import dataclass
+
+import taichi as ti
+
+# stop coarsening at this many cells (empty ones included); the coarsest level gets Gauss-Seidel sweeps
+COARSEST_CELLS = 64
+# levels with fewer cells run their loops on one thread
+SERIAL_CELLS = 4096
+
+
+@dataclass(frozen=True)
+class GridLevel:
+    """One coarse level: a box of cells (last axis fastest), stored at `offset` in the flat arrays."""
+
+    n: tuple[int, ...]
+    periodic: tuple[bool, ...]
+    offset: int
+    factor: tuple[int, ...]  # cells of this level merged per axis into one of the next (1 or 2)
+
+    @property
+    def count(self) -> int:
+        return math.prod(self.n)
+
+    @property
+    def strides(self) -> tuple[int, ...]:
+        s = [1] * len(self.n)
+        for d in range(len(self.n) - 2, -1, -1):
+            s[d] = s[d + 1] * self.n[d + 1]
+        return tuple(s)
+
+    @property
+    def serial(self) -> bool:
+        return self.count < SERIAL_CELLS
+
+
+def coarsening_factors(n: tuple[int, ...], periodic: tuple[bool, ...]) -> tuple[int, ...]:
+    """Per axis 2 where the axis can halve (a periodic one keeps >= 3 cells, so that the 3-wide stencil
+    never names one cell twice), else 1."""
+    return tuple(2 if (n_d >= 6 if per else n_d >= 2) else 1 for n_d, per in zip(n, periodic))
+
+
+def grid_levels(n_cells: tuple[int, ...], periodic: tuple[bool, ...]) -> list[GridLevel]:
+    """Level 1 (the neighbour cells) and its coarsenings down to <= COARSEST_CELLS cells."""
+    levels: list[GridLevel] = []
+    n, offset = tuple(n_cells), 0
+    while True:
+        f = coarsening_factors(n, periodic)
+        last = math.prod(n) <= COARSEST_CELLS or all(x == 1 for x in f)
+        levels.append(GridLevel(n, periodic, offset, (1,) * len(n) if last else f))
+        if last:
+            return levels
+        offset += math.prod(n)
+        n = tuple((n_d + f_d - 1) // f_d for n_d, f_d in zip(n, f))
+
+
+@ti.data_oriented
+class CellMultigrid:
+    """The V-cycle preconditioner of one `MatrixFreePPE` (`ppe`): Galerkin levels on its neighbour cells.
+
+    `assemble(serial)` rebuilds every level's operator from the particle system (once per solve);
+    `restrict_particles` and `prolong_particles` are the particle ends of the V-cycle, called inside the
+    CG kernels (they read `ppe.res` = r and `ppe.z0` = omega r / diag, and write `ppe.z`), and
+    `coarse_cycle(serial)` runs the levels in between. Level sizes are runtime values (one compiled kernel
+    serves every level).
+    """
+
+    def __init__(self, ppe, omega: float, coarse_scale: float, coarsest_sweeps: int, unknown: int,
+                 slots: tuple[int, int, int]) -> None:
+        ns = ppe.nsearch
+        self.ppe = ppe
+        self.unknown = unknown  # the role of a PPE unknown, and the scalar slots r.z, sum z, sum r go into
+        self.rz_slot, self.z_sum_slot, self.r_sum_slot = slots
+        self.dim = ns.dim
+        self.periodic = tuple(ns.periodic)
+        self.omega = float(omega)
+        self.scale = float(coarse_scale)
+        self.sweeps = int(coarsest_sweeps)
+        self.levels = grid_levels(ns.n_cells, ns.periodic)
+        assert self.levels[0].strides == ns._strides and self.levels[0].count == ns.total_cells
+        self.top_count = self.levels[0].count
+        n_levels = len(self.levels)
+        self.lv_n = ti.Vector.field(self.dim, ti.i32, n_levels)
+        self.lv_stride = ti.Vector.field(self.dim, ti.i32, n_levels)
+        self.lv_factor = ti.Vector.field(self.dim, ti.i32, n_levels)
+        self.lv_shift = ti.Vector.field(self.dim, ti.i32, n_levels)  # log2 of the factor: parent = i >> shift
+        self.lv_offset = ti.field(ti.i32, n_levels)
+        self.lv_count = ti.field(ti.i32, n_levels)
+        for l, lv in enumerate(self.levels):
+            self.lv_n[l], self.lv_stride[l], self.lv_factor[l] = lv.n, lv.strides, lv.factor
+            self.lv_shift[l] = tuple(f - 1 for f in lv.factor)
+            self.lv_offset[l], self.lv_count[l] = lv.offset, lv.count
+        total = sum(lv.count for lv in self.levels)
+        self.n_slots = 3 ** self.dim
+        self.center = (self.n_slots - 1) // 2
+        self.stencil = ti.field(float, (total, self.n_slots))  # A_l[I, slot of the offset J - I]
+        self.dinv = ti.field(float, total)  # 1 / A_l[I, I], 0 on empty cells
+        self.b = ti.field(float, total)     # right side of each level
+        self.x = ti.field(float, total)     # pre-smoothed iterate
+        self.y = ti.field(float, total)     # the level's result (post-smoothed, or Gauss-Seidel on the coarsest)
+
+    def describe(self) -> str:
+        return " > ".join("x".join(str(k) for k in lv.n) for lv in self.levels)
+
+    # -- cell arithmetic ------------------------------------------------------------------------------
+    @ti.func
+    def coord(self, l, c):
+        return (c // self.lv_stride[l]) % self.lv_n[l]
+
+    @ti.func
+    def linear(self, l, i):
+        return i.dot(self.lv_stride[l])
+
+    @ti.func
+    def top_coord(self, c):
+        """coord(0, c) with the neighbour grid's sizes as compile-time constants (divisions by constants)."""
+        i = ti.Vector.zero(ti.i32, self.dim)
+        for d in ti.static(range(self.dim)):
+            i[d] = (c // ti.static(self.levels[0].strides[d])) % ti.static(self.levels[0].n[d])
+        return i
+
+    @ti.func
+    def neighbour(self, l, i, s):
+        """(inside, coordinates) of the cell at stencil slot s from cell i (periodic axes wrap)."""
+        n = self.lv_n[l]
+        inside = True
+        j = i
+        for d in ti.static(range(self.dim)):
+            j[d] = i[d] + (s // ti.static(3 ** d)) % 3 - 1
+            if ti.static(self.periodic[d]):
+                if j[d] < 0:
+                    j[d] += n[d]
+                elif j[d] >= n[d]:
+                    j[d] -= n[d]
+            elif j[d] < 0 or j[d] >= n[d]:
+                inside = False
+        return inside, j
+
+    @ti.func
+    def slot_of(self, l, di):
+        """Stencil slot of the cell offset di (each component in -1..1 after the periodic wrap)."""
+        s = 0
+        for d in ti.static(range(self.dim)):
+            o = di[d]
+            if ti.static(self.periodic[d]):
+                if o > 1:
+                    o -= self.lv_n[l][d]
+                elif o < -1:
+                    o += self.lv_n[l][d]
+            o = ti.min(ti.max(o, -1), 1)  # a particle clamped into an edge cell (escaped) stays in reach
+            s += (o + 1) * ti.static(3 ** d)
+        return s
+
+    @ti.func
+    def parent(self, l, i):
+        """Coordinates on level l + 1 of the cell i of level l."""
+        return i >> self.lv_shift[l]
+
+    @ti.func
+    def child(self, l, I, ch):
+        """(exists, coordinates on level l) of the ch-th child of the cell I of level l + 1."""
+        f = self.lv_factor[l]
+        i = I * f
+        exists = True
+        for d in ti.static(range(self.dim)):
+            bit = (ch >> d) & 1
+            if bit >= f[d]:
+                exists = False
+            i[d] += bit
+            if i[d] >= self.lv_n[l][d]:
+                exists = False
+        return exists, i
+
+    @ti.func
+    def apply_level(self, l, v: ti.template(), c, i):
+        """(A_l v)_c for the cell c (coordinates i) of level l, v a flat field."""
+        base = self.lv_offset[l]
+        acc = 0.0
+        for s in range(self.n_slots):
+            a_cs = self.stencil[base + c, s]
+            if a_cs != 0.0:
+                _, j = self.neighbour(l, i, s)
+                acc += a_cs * v[base + self.linear(l, j)]
+        return acc
+
+    @ti.func
+    def inverse_diagonal(self, row) -> float:
+        """1 / A_II, or 0 for an empty cell (no unknown in it: its row is zero and so stays its result)."""
+        d = row[ti.static(self.center)]
+        inv = 0.0
+        if d > 0.0:
+            inv = 1.0 / d
+        return inv
+
+    # -- operators ------------------------------------------------------------------------------------
+    def assemble(self, serial: bool) -> None:
+        """A_1 = P^T A P from the particles' pair coefficients, then A_{l+1} = P^T A_l P down the levels."""
+        self.galerkin_from_particles(serial)
+        for l in range(len(self.levels) - 1):
+            self.galerkin_coarsen(l, serial or self.levels[l + 1].serial)
+
+    @ti.kernel
+    def galerkin_from_particles(self, serial: ti.template()):
+        """A_1[I, I] = sum_{a in I} A_aa, A_1[I, J] = -sum_{a in I, b in J} coeff_ab."""
+        E = self.ppe
+        NS = self.ppe.nsearch
+        ti.loop_config(serialize=serial)
+        for c in range(self.top_count):
+            row = ti.Vector.zero(float, self.n_slots)
+            ic = self.top_coord(c)
+            for a in range(NS.cell_start[c], NS.cell_start[c + 1]):
+                if E.role[a] == ti.static(self.unknown):
+                    row[ti.static(self.center)] += E.diag[a]
+                    for k in range(NS.count[a]):
+                        coeff = E.coeff[a, k]
+                        if coeff != 0.0:
+                            row[self.slot_of(0, self.top_coord(NS.cell_id[NS.neighbors[a, k]]) - ic)] -= coeff
+            for s in ti.static(range(self.n_slots)):
+                self.stencil[c, s] = row[s]
+            self.dinv[c] = self.inverse_diagonal(row)
+
+    @ti.kernel
+    def galerkin_coarsen(self, l: ti.i32, serial: ti.template()):
+        """A_{l+1}[I', J'] = sum of A_l[I, J] over the children I of I' and J of J'."""
+        fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
+        ti.loop_config(serialize=serial)
+        for C in range(self.lv_count[l + 1]):
+            row = ti.Vector.zero(float, self.n_slots)
+            iC = self.coord(l + 1, C)
+            for ch in range(ti.static(2 ** self.dim)):
+                exists, i = self.child(l, iC, ch)
+                if exists:
+                    c = self.linear(l, i)
+                    for s in range(self.n_slots):
+                        a_cs = self.stencil[fine + c, s]
+                        if a_cs != 0.0:
+                            _, j = self.neighbour(l, i, s)
+                            row[self.slot_of(l + 1, self.parent(l, j) - iC)] += a_cs
+            for s in ti.static(range(self.n_slots)):
+                self.stencil[coarse + C, s] = row[s]
+            self.dinv[coarse + C] = self.inverse_diagonal(row)
+
+    # -- the V-cycle: particle ends (called inside the CG kernels) ----------------------------------
+    @ti.func
+    def particle_residual(self, a):
+        """r_a - (A z0)_a, z0 the particle level's current iterate."""
+        E = self.ppe
+        NS = self.ppe.nsearch
+        za = E.z0[a]
+        az = E.diag_dirichlet[a] * za
+        for k in range(NS.count[a]):
+            az += E.coeff[a, k] * (za - E.z0[NS.neighbors[a, k]])
+        return E.res[a] - az
+
+    @ti.func
+    def restrict_particles(self, serial: ti.template()):
+        """b_1 = P^T (r - A z0) (z0 = omega r / diag, the particles' pre-smoothing) and x_1 = omega D_1^-1 b_1."""
+        E = self.ppe
+        NS = self.ppe.nsearch
+        ti.loop_config(serialize=serial)
+        for c in range(self.top_count):
+            acc = 0.0
+            for a in range(NS.cell_start[c], NS.cell_start[c + 1]):
+                if E.role[a] == ti.static(self.unknown):
+                    acc += self.particle_residual(a)
+            self.b[c] = acc
+            self.x[c] = self.omega * self.dinv[c] * acc
+
+    @ti.func
+    def prolong_particles(self, serial: ti.template(), sums: ti.template()):
+        """z0 += s P y_1, then z = z0 + omega (r - A z0) / diag; r . z reduced (and sum z, sum r with `sums`)."""
+        E = self.ppe
+        NS = self.ppe.nsearch
+        ti.loop_config(serialize=serial)
+        for a in range(E.n):
+            if E.role[a] == ti.static(self.unknown):
+                E.z0[a] += self.scale * self.y[NS.cell_id[a]]
+        ti.loop_config(serialize=serial)
+        for a in range(E.n):
+            z = 0.0
+            if E.role[a] == ti.static(self.unknown):
+                z = E.z0[a] + self.omega * self.particle_residual(a) / E.diag[a]
+                ti.atomic_add(E.scalars[ti.static(self.rz_slot)], E.res[a] * z)
+                if ti.static(sums):
+                    ti.atomic_add(E.scalars[ti.static(self.z_sum_slot)], z)
+                    ti.atomic_add(E.scalars[ti.static(self.r_sum_slot)], E.res[a])
+            E.z[a] = z
+
+    # -- the V-cycle: the cell levels ---------------------------------------------------------------
+    def coarse_cycle(self, serial: bool) -> None:
+        """From b_1 and x_1 (set by restrict_particles) to y_1: down, coarsest solve, up."""
+        last = len(self.levels) - 1
+        for l in range(last):
+            self.restrict_level(l, serial or self.levels[l + 1].serial)
+        self.coarsest_solve(last)
+        for l in range(last - 1, -1, -1):
+            self.prolong_level(l, serial or self.levels[l].serial)
+
+    @ti.kernel
+    def restrict_level(self, l: ti.i32, serial: ti.template()):
+        """b_{l+1} = P^T (b_l - A_l x_l), then x_{l+1} = omega D^-1 b_{l+1}."""
+        fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
+        ti.loop_config(serialize=serial)
+        for C in range(self.lv_count[l + 1]):
+            iC = self.coord(l + 1, C)
+            acc = 0.0
+            for ch in range(ti.static(2 ** self.dim)):
+                exists, i = self.child(l, iC, ch)
+                if exists:
+                    c = self.linear(l, i)
+                    if self.dinv[fine + c] > 0.0:  # an empty cell has b = x = 0
+                        acc += self.b[fine + c] - self.apply_level(l, self.x, c, i)
+            self.b[coarse + C] = acc
+            self.x[coarse + C] = self.omega * self.dinv[coarse + C] * acc
+
+    @ti.kernel
+    def prolong_level(self, l: ti.i32, serial: ti.template()):
+        """u = x_l + s P y_{l+1}, y_l = u + omega D^-1 (b_l - A_l u), u of the neighbours formed on the fly."""
+        fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
+        ti.loop_config(serialize=serial)
+        for c in range(self.lv_count[l]):
+            y = 0.0
+            if self.dinv[fine + c] > 0.0:  # empty cells stay 0
+                i = self.coord(l, c)
+                u = self.x[fine + c] + self.scale * self.y[coarse + self.linear(l + 1, self.parent(l, i))]
+                au = 0.0
+                for s in range(self.n_slots):
+                    a_cs = self.stencil[fine + c, s]
+                    if a_cs != 0.0:
+                        _, j = self.neighbour(l, i, s)
+                        uj = self.x[fine + self.linear(l, j)] + self.scale * self.y[coarse + self.linear(l + 1, self.parent(l, j))]
+                        au += a_cs * uj
+                y = u + self.omega * self.dinv[fine + c] * (self.b[fine + c] - au)
+            self.y[fine + c] = y
+
+    @ti.kernel
+    def coarsest_solve(self, l: ti.i32):
+        """y = (symmetric Gauss-Seidel)^sweeps b on the coarsest level, from y = 0, on one thread."""
+        base, count = self.lv_offset[l], self.lv_count[l]
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            for c in range(count):
+                self.y[base + c] = 0.0
+            for _sweep in range(self.sweeps):
+                for k in range(2 * count):
+                    c = k if k < count else 2 * count - 1 - k  # forward, then backward
+                    if self.dinv[base + c] > 0.0:
+                        i = self.coord(l, c)
+                        off_diag = self.apply_level(l, self.y, c, i) - self.stencil[base + c, ti.static(self.center)] * self.y[base + c]
+                        self.y[base + c] = (self.b[base + c] - off_diag) * self.dinv[base + c]
