@@ -70,6 +70,10 @@ def worker(spec: dict) -> dict:
     first_step_s = time.perf_counter() - t0
     out = {"n_fluid": arrays.n_fluid, "n_wall": arrays.n_wall, "arch": current_arch_name(),
            "time_to_first_step_s": time.perf_counter() - t_start}
+    def marks():  # simulated time, PPE seconds and solves so far: what the timed steps are measured from
+        return solver.t, getattr(solver, "ppe_seconds", 0.0), len(getattr(solver, "iterations", []))
+
+    t_sim0, ppe0, its0 = marks()
     if spec.get("t_end"):
         t1 = time.perf_counter()
         while solver.t < spec["t_end"]:
@@ -81,6 +85,7 @@ def worker(spec: dict) -> dict:
         while warmup < 3 or (schedule is not None and schedule.deciding):
             solver.step()
             warmup += 1
+        t_sim0, ppe0, its0 = marks()
         t1 = time.perf_counter()
         for _ in range(spec["steps"]):
             solver.step()
@@ -88,6 +93,13 @@ def worker(spec: dict) -> dict:
         out.update(steps=spec["steps"], stepping_s=stepping)
     n_steps = out["steps"] if spec.get("t_end") else spec["steps"]
     per_step = stepping / max(n_steps, 1)
+    out["simulated_s"] = solver.t - t_sim0
+    # wall seconds per simulated second at the step the developed flow takes: CFL h / (c + reference
+    # speed), c = c0 for WCSPH, 0 for ISPH (steps from rest are force-limited and far longer for ISPH;
+    # the dam break's measured mean dt ratio, 11x, is this ratio)
+    sound = cfg.sound_speed if cfg.solver == "wcsph" else 0.0
+    out["dt_developed_s"] = cfg.time.cfl * cfg.h / (sound + cfg.expected_speed)
+    out["wall_per_simulated_s"] = per_step / out["dt_developed_s"]
     out["compile_s"] = max(first_step_s - 2 * per_step, 0.0)
     out["step_ms"] = per_step * 1e3
     out["particle_steps_per_s"] = arrays.n / per_step
@@ -95,9 +107,13 @@ def worker(spec: dict) -> dict:
     out["wall_particle_steps_per_s"] = arrays.n_wall / per_step
     out["loops"] = "-" if schedule is None or schedule.serial is None else ("serial" if schedule.serial else "parallel")
     out["peak_rss_mib"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-    extra = solver.extra_summary()
-    if "ppe" in extra:
-        out["ppe_iterations_mean"] = extra["ppe"].get("iterations_mean")
+    if cfg.solver == "isph":
+        timed = solver.iterations[its0:]
+        out["ppe_solver"] = solver.ppe.solver
+        out["ppe_iterations_mean"] = sum(timed) / max(len(timed), 1)
+        ppe_s = solver.ppe_seconds - ppe0
+        out["ppe_ms_per_iteration"] = 1e3 * ppe_s / max(sum(timed), 1)
+        out["ppe_share"] = ppe_s / stepping
     return out
 
 
@@ -145,6 +161,10 @@ def cmd_bench(args) -> int:
             row = {"dim": dim, "target": n, "solver": args.solver, **res,
                    "compile_warm_s": warm.get("compile_s"), "time_to_first_step_warm_s": warm.get("time_to_first_step_s")}
             row["cache"] = "cold" if first else "shared"
+            if args.solver == "isph":  # the same scene with WCSPH, for the per-simulated-second comparison
+                peer = _run_worker(dict(spec, overrides=[o if o != "solver=isph" else "solver=wcsph"
+                                                         for o in spec["overrides"]]), cache)
+                row["wcsph"] = {k: peer.get(k) for k in ("step_ms", "wall_per_simulated_s", "dt_developed_s", "error")}
             rows.append(row)
             _print_row(row, header=i == 0)
         if args.pysph_scene:
@@ -176,7 +196,19 @@ def _print_row(row: dict, header: bool) -> None:
     print(f"{row['dim']:>3} {row['n_fluid']:>9} {row['n_wall']:>8} {_fmt_rate(row['particle_steps_per_s']):>13} "
           f"{_fmt_rate(row['fluid_particle_steps_per_s']):>7} {_fmt_rate(row['wall_particle_steps_per_s']):>7} "
           f"{row['step_ms']:>8.2f} {row['compile_s']:>11.1f}s {row.get('compile_warm_s') or math.nan:>5.1f}s "
-          f"{row['peak_rss_mib']:>9.0f} {row.get('loops', '-'):>8}" + (f"  PPE iters {row['ppe_iterations_mean']:.1f}" if row.get("ppe_iterations_mean") else ""))
+          f"{row['peak_rss_mib']:>9.0f} {row.get('loops', '-'):>8}")
+    if row.get("ppe_solver"):
+        line = (f"    PPE {row['ppe_solver']}: {row['ppe_iterations_mean']:.1f} iterations/step, "
+                f"{row['ppe_ms_per_iteration']:.3f} ms/iteration, {100 * row['ppe_share']:.0f}% of the step")
+        peer = row.get("wcsph") or {}
+        if peer.get("wall_per_simulated_s"):
+            ratio = row["wall_per_simulated_s"] / peer["wall_per_simulated_s"]
+            line += (f"; wall s per simulated s at the developed-flow step (ISPH dt {row['dt_developed_s']:.2e}, "
+                     f"WCSPH {peer['dt_developed_s']:.2e}): ISPH {row['wall_per_simulated_s']:.3g}, "
+                     f"WCSPH {peer['wall_per_simulated_s']:.3g} ({peer['step_ms']:.2f} ms/step): ISPH/WCSPH {ratio:.2f}")
+        elif peer.get("error"):
+            line += f"; WCSPH on the same scene failed: {peer['error']}"
+        print(line)
     sys.stdout.flush()
 
 

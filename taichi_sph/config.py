@@ -138,10 +138,11 @@ class Multigrid:
 
 @dataclass(frozen=True)
 class PPE:
-    solver: str = opt("cg", "pressure Poisson solver, matrix-free: CG preconditioned by a multigrid V-cycle on the neighbour "
+    solver: str = opt(AUTO, "pressure Poisson solver, matrix-free: CG preconditioned by a multigrid V-cycle on the neighbour "
                             "cells (mgcg), by Jacobi (cg), weighted Jacobi (jacobi), or auto (mgcg from "
                             "isph.ppe.mgcg_from fluid particles, cg below)", choices=("auto", "mgcg", "cg", "jacobi"))
-    mgcg_from: int = opt(0, "fluid-particle count from which solver 'auto' takes mgcg", minimum=0)
+    mgcg_from: int = opt(1000, "fluid-particle count from which solver 'auto' takes mgcg (measured on the 2D dam break: "
+                               "mgcg 2.2x faster per step at 1.7k fluid particles, 2.8x at 25k)", minimum=0)
     multigrid: Multigrid = opt(factory=Multigrid, doc="mgcg's V-cycle")
     tolerance: float = opt(1e-4, "relative residual ||b - A p|| / ||b|| to stop at", positive=True)
     max_iterations: int = opt(1000, "iteration cap; reaching it is a warning in the summary", minimum=1)

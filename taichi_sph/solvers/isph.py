@@ -47,6 +47,7 @@ field: the Wendland C2 gradient sum is 0.974, not 1, at h = 1.3 dx.
 
 # No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
 import math
+import time
 
 import numpy as np
 import taichi as ti
@@ -138,6 +139,7 @@ class ISPHSolver(SolverBase):
         self.iterations: list[int] = []
         self.residuals: list[float] = []
         self.pure_neumann_steps = 0
+        self.ppe_seconds = 0.0  # wall time in the PPE solves (assembly excluded)
 
     @ti.func
     def body_acc(self):
@@ -392,7 +394,9 @@ class ISPHSolver(SolverBase):
             self.wall_pressure()  # ghost velocities for the viscous terms
         self.predict_velocity(dt)
         self.assemble_ppe(dt, dt_free)
-        iterations, residual, pure_neumann = self.ppe.solve(self.p_background)
+        t_solve = time.perf_counter()
+        iterations, residual, pure_neumann = self.ppe.solve(self.p_background)  # ends on a residual read-back
+        self.ppe_seconds += time.perf_counter() - t_solve
         self.iterations.append(iterations)
         self.residuals.append(residual)
         self.pure_neumann_steps += int(pure_neumann)
@@ -423,6 +427,7 @@ class ISPHSolver(SolverBase):
                "tolerance": self.ppe.tolerance, "max_iterations": self.ppe.max_iterations,
                "source": self.source if self.source != "blend" else f"blend({self.beta:g})",
                "pure_neumann_steps": self.pure_neumann_steps,
+               "multigrid_levels": self.ppe.mg.describe() if self.ppe.mg else None,
                "loop_schedule": {None: "undecided", True: "serial", False: "parallel"}[self.ppe.serial],
                "walls": "Neumann (pairwise hydrostatic) in the PPE, Adami pressure >= p_b in the gradient",
                "pressure_gradient": "kernel-gradient-corrected difference form"}
