@@ -19,10 +19,10 @@ nothing has to be re-derived per boundary type):
 
 One application z = M r of the symmetric V-cycle, from zero at every level:
 
-    x_l = omega D_l^-1 b_l                                   (pre-smoothing: one weighted-Jacobi sweep)
+    x_l = omega D_l^-1 b_l                                   (pre-smoothing: weighted-Jacobi sweeps from 0)
     b_{l+1} = P^T (b_l - A_l x_l)                            (restriction: sum over the children)
     x_l <- x_l + s P y_{l+1}                                 (coarse correction, s = `coarse_scale`)
-    y_l = x_l + omega D_l^-1 (b_l - A_l x_l)                 (post-smoothing, the same sweep)
+    y_l = x_l + omega D_l^-1 (b_l - A_l x_l)                 (post-smoothing, as many of the same sweeps)
 
 and on the coarsest level `coarsest_sweeps` symmetric Gauss-Seidel sweeps (forward then backward) from zero.
 As an operator M = S_bar + Q^T (s M_c) Q with S_bar = S + S^T - S^T A S the symmetrised smoother and
@@ -116,7 +116,7 @@ class CellMultigrid:
     serves every level).
     """
 
-    def __init__(self, ppe, omega: float, coarse_scale: float, coarsest_sweeps: int, unknown: int,
+    def __init__(self, ppe, omega: float, coarse_scale: float, coarsest_sweeps: int, cell_sweeps: int, unknown: int,
                  slots: tuple[int, int, int]) -> None:
         ns = ppe.nsearch
         self.ppe = ppe
@@ -127,6 +127,7 @@ class CellMultigrid:
         self.omega = float(omega)
         self.scale = float(coarse_scale)
         self.sweeps = int(coarsest_sweeps)
+        self.cell_sweeps = int(cell_sweeps)
         self.levels = grid_levels(ns.n_cells, ns.periodic)
         assert self.levels[0].strides == ns._strides and self.levels[0].count == ns.total_cells
         self.top_count = self.levels[0].count
@@ -149,6 +150,7 @@ class CellMultigrid:
         self.b = ti.field(float, total)     # right side of each level
         self.x = ti.field(float, total)     # pre-smoothed iterate
         self.y = ti.field(float, total)     # the level's result (post-smoothed, or Gauss-Seidel on the coarsest)
+        self.swept = ti.field(float, total) if self.cell_sweeps > 1 else None  # scratch of the extra sweeps
 
     def describe(self) -> str:
         return " > ".join("x".join(str(k) for k in lv.n) for lv in self.levels)
@@ -342,10 +344,29 @@ class CellMultigrid:
         """From b_1 and x_1 (set by restrict_particles) to y_1: down, coarsest solve, up."""
         last = len(self.levels) - 1
         for l in range(last):
+            for _ in range(self.cell_sweeps - 1):
+                self.jacobi_sweep(l, self.x, serial or self.levels[l].serial)
             self.restrict_level(l, serial or self.levels[l + 1].serial)
         self.coarsest_solve(last)
         for l in range(last - 1, -1, -1):
             self.prolong_level(l, serial or self.levels[l].serial)
+            for _ in range(self.cell_sweeps - 1):
+                self.jacobi_sweep(l, self.y, serial or self.levels[l].serial)
+
+    @ti.kernel
+    def jacobi_sweep(self, l: ti.i32, v: ti.template(), serial: ti.template()):
+        """v <- v + omega D_l^-1 (b_l - A_l v) on level l: the cell levels' second and later smoothing sweeps
+        (the same number before and after the coarse correction, so the V-cycle stays symmetric)."""
+        base = self.lv_offset[l]
+        ti.loop_config(serialize=serial)
+        for c in range(self.lv_count[l]):
+            swept = 0.0
+            if self.dinv[base + c] > 0.0:
+                swept = v[base + c] + self.omega * self.dinv[base + c] * (self.b[base + c] - self.apply_level(l, v, c, self.coord(l, c)))
+            self.swept[base + c] = swept
+        ti.loop_config(serialize=serial)
+        for c in range(self.lv_count[l]):
+            v[base + c] = self.swept[base + c]
 
     @ti.kernel
     def restrict_level(self, l: ti.i32, serial: ti.template()):

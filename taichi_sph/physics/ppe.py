@@ -130,7 +130,7 @@ class MatrixFreePPE:
         if solver == "mgcg":
             self.z0 = ti.field(float, n)  # the V-cycle's pre-smoothed particle iterate
             mgs = multigrid
-            self.mg = CellMultigrid(self, mgs.smoother_omega, mgs.coarse_scale, mgs.coarsest_sweeps, UNKNOWN,
+            self.mg = CellMultigrid(self, mgs.smoother_omega, mgs.coarse_scale, mgs.coarsest_sweeps, mgs.cell_sweeps, UNKNOWN,
                                     (RZ_NEW, SUM_Z, SUM_R))
         self.scalars = ti.field(float, 11)
         # CPU: whether the iteration loops run on one thread (see `_choose_schedule`); elsewhere parallel
