@@ -130,7 +130,7 @@ def test_missing_vulkan_is_one_clear_line(monkeypatch):
     monkeypatch.setenv("VK_ICD_FILENAMES", "/nonexistent.json")
     monkeypatch.setenv("VK_DRIVER_FILES", "/nonexistent.json")
     assert render._probe_vulkan() is False
-    monkeypatch.setattr(render, "vulkan_available", lambda: False)
+    monkeypatch.setattr(render.scene, "vulkan_available", lambda: False)
     with pytest.raises(RenderUnavailable, match="apt-get install -y mesa-vulkan-drivers") as err:
         FrameRenderer(RenderSettings(width=200, height=120), 2, (0, 0), (1, 1), 4, 0.1)
     assert "\n" not in str(err.value)
