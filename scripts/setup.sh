@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
 # One-time set-up on a fresh Debian/Ubuntu machine (idempotent; safe to re-run):
 #  - system packages when missing: software Vulkan (mesa-vulkan-drivers) for the offscreen renderer,
+#    a virtual X server (xvfb, xauth) for the live window's tests (`taichi-sph view` under Xvfb),
 #    python3-venv for the virtual environment
 #  - a virtual environment in .venv with taichi-sph and its dependencies installed (editable)
 set -euo pipefail
@@ -11,6 +12,8 @@ if ! ls /usr/share/vulkan/icd.d/*.json /etc/vulkan/icd.d/*.json >/dev/null 2>&1;
   need+=(mesa-vulkan-drivers libvulkan1)
 fi
 if ! ldconfig -p 2>/dev/null | grep -q "libX11.so.6"; then need+=(libx11-6); fi
+if ! command -v Xvfb >/dev/null 2>&1; then need+=(xvfb); fi
+if ! command -v xauth >/dev/null 2>&1; then need+=(xauth); fi
 if ! python3 -c "import ensurepip, venv" >/dev/null 2>&1; then need+=(python3-venv); fi
 if [ ${#need[@]} -gt 0 ]; then
   if command -v apt-get >/dev/null 2>&1 && [ "$(id -u)" = 0 ]; then

@@ -13,13 +13,13 @@ One idea a module:
 from .colours import (BACKGROUND, FLUID_BLUE, NAN_COLOUR, TEXT_COLOUR, VIRIDIS, WALL_GREY, auto_range, colormap,
                       colour_values, particle_colours, particle_values, shared_range)
 from .frames import FrameRenderer, image_from_buffer, time_label
-from .overlay import FrameLayout, draw_text, format_number, overlay_rectangles, text_mask
+from .overlay import FrameLayout, draw_text, format_number, overlay_rectangles, rectangles, text_mask
 from .scene import VULKAN_FIX, _probe_vulkan, vulkan_available
 from .settings import COLOUR_FIELDS, VIDEO_FORMATS, RenderSettings
 from .video import assemble_video, render_run
 
 __all__ = ["BACKGROUND", "FLUID_BLUE", "NAN_COLOUR", "TEXT_COLOUR", "VIRIDIS", "WALL_GREY", "auto_range", "colormap",
            "colour_values", "particle_colours", "particle_values", "shared_range", "FrameRenderer", "image_from_buffer",
-           "time_label", "FrameLayout", "draw_text", "format_number", "overlay_rectangles", "text_mask", "VULKAN_FIX",
+           "time_label", "FrameLayout", "draw_text", "format_number", "overlay_rectangles", "rectangles", "text_mask", "VULKAN_FIX",
            "_probe_vulkan", "vulkan_available", "COLOUR_FIELDS", "VIDEO_FORMATS", "RenderSettings", "assemble_video",
            "render_run"]

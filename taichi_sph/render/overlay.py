@@ -116,13 +116,55 @@ class FrameLayout:
     def plot_h(self) -> int:
         return self.height - self.band_h
 
+    def band_image(self, label: str) -> np.ndarray:
+        """The top band (band_h, width, 3) uint8: the label on the background."""
+        img = np.empty((self.band_h, self.width, 3), dtype=np.uint8)
+        img[:] = to_u8(BACKGROUND)
+        draw_text(img, label, self.pad, self.pad, self.k)
+        return img
+
+    def strip_image(self, colour_by: str, rng: tuple[float, float]) -> np.ndarray:
+        """The right strip below the band (plot_h, strip_w, 3) uint8: the field name, max at the top of a
+        viridis bar, min below; swatches for `kind`."""
+        img = np.empty((self.plot_h, self.strip_w, 3), dtype=np.uint8)
+        img[:] = to_u8(BACKGROUND)
+        k, pad, line = self.k, self.pad, self.line_h
+        mid = self.strip_w // 2
+        row = pad
+        if colour_by == "kind":
+            for name, colour in (("fluid", FLUID_BLUE), ("wall", WALL_GREY)):
+                img[row:row + 7 * k, pad:pad + 7 * k] = to_u8(colour)
+                draw_text(img, name, row, pad + 9 * k, k)
+                row += line + k
+            return img
+        for word in TITLES[colour_by]:
+            draw_text(img, word, row, mid, k, centre=True)
+            row += line
+        draw_text(img, format_number(rng[1]), row, mid, k, centre=True)
+        top, bottom = row + line + k, self.plot_h - pad - line - k
+        if bottom - top < 4:
+            return img
+        bar_w = 8 * k
+        x0 = mid - bar_w // 2
+        s = np.linspace(1.0, 0.0, bottom - top)
+        img[top:bottom, x0:x0 + bar_w] = to_u8(colormap(s))[:, None, :]
+        edge = to_u8(TEXT_COLOUR)
+        img[[top - 1, bottom], x0 - 1:x0 + bar_w + 1] = edge
+        img[top - 1:bottom + 1, [x0 - 1, x0 + bar_w]] = edge
+        draw_text(img, format_number(rng[0]), bottom + k + 1, mid, k, centre=True)
+        return img
+
+    def legend_key(self, colour_by: str, rng: tuple[float, float]) -> tuple:
+        """What the strip shows: equal keys, equal strip images."""
+        return (colour_by,) if colour_by == "kind" else (colour_by, format_number(rng[0]), format_number(rng[1]))
+
     def overlay(self, colour_by: str, rng: tuple[float, float], label: str) -> np.ndarray:
         """The overlay image (H, W, 3) uint8: label in the band, legend in the strip. Only the band and
         the strip are meant to be shown (`burn`, `overlay_rectangles`); the plot area is background."""
         img = np.empty((self.height, self.width, 3), dtype=np.uint8)
         img[:] = to_u8(BACKGROUND)
-        draw_text(img, label, self.pad, self.pad, self.k)
-        self._legend(img, colour_by, rng)
+        img[:self.band_h] = self.band_image(label)
+        img[self.band_h:, self.plot_w:] = self.strip_image(colour_by, rng)
         return img
 
     def burn(self, frame: np.ndarray, overlay: np.ndarray) -> None:
@@ -130,37 +172,9 @@ class FrameLayout:
         frame[:self.band_h] = overlay[:self.band_h]
         frame[self.band_h:, self.plot_w:] = overlay[self.band_h:, self.plot_w:]
 
-    def _legend(self, frame: np.ndarray, colour_by: str, rng: tuple[float, float]) -> None:
-        """Right strip: the field name, max at the top of a viridis bar, min below; swatches for `kind`."""
-        k, pad, line = self.k, self.pad, self.line_h
-        mid = self.plot_w + self.strip_w // 2
-        row = self.band_h + pad
-        if colour_by == "kind":
-            for name, colour in (("fluid", FLUID_BLUE), ("wall", WALL_GREY)):
-                x0 = self.plot_w + pad
-                frame[row:row + 7 * k, x0:x0 + 7 * k] = to_u8(colour)
-                draw_text(frame, name, row, x0 + 9 * k, k)
-                row += line + k
-            return
-        for word in TITLES[colour_by]:
-            draw_text(frame, word, row, mid, k, centre=True)
-            row += line
-        draw_text(frame, format_number(rng[1]), row, mid, k, centre=True)
-        top, bottom = row + line + k, self.height - pad - line - k
-        if bottom - top < 4:
-            return
-        bar_w = 8 * k
-        x0 = mid - bar_w // 2
-        s = np.linspace(1.0, 0.0, bottom - top)
-        frame[top:bottom, x0:x0 + bar_w] = to_u8(colormap(s))[:, None, :]
-        edge = to_u8(TEXT_COLOUR)
-        frame[[top - 1, bottom], x0 - 1:x0 + bar_w + 1] = edge
-        frame[top - 1:bottom + 1, [x0 - 1, x0 + bar_w]] = edge
-        draw_text(frame, format_number(rng[0]), bottom + k + 1, mid, k, centre=True)
-
 
 # ----------------------------------------------------------------------------- overlay as rectangles
-def _runs(region: np.ndarray, r_off: int, c_off: int) -> tuple[np.ndarray, np.ndarray]:
+def rectangles(region: np.ndarray, r_off: int = 0, c_off: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Cover `region` (h, w, 3) with one-colour rectangles: runs of equal pixels along each row, rows
     equal to the one above merged. Returns (M, 4) int [r0, r1, c0, c1) in frame pixels and (M, 3) uint8."""
     h, w = region.shape[:2]
@@ -180,6 +194,6 @@ def _runs(region: np.ndarray, r_off: int, c_off: int) -> tuple[np.ndarray, np.nd
 
 def overlay_rectangles(layout: FrameLayout, overlay: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The overlay's band and strip as rectangles [r0, r1, c0, c1) with their uint8 colours."""
-    band = _runs(overlay[:layout.band_h], 0, 0)
-    strip = _runs(overlay[layout.band_h:, layout.plot_w:], layout.band_h, layout.plot_w)
+    band = rectangles(overlay[:layout.band_h], 0, 0)
+    strip = rectangles(overlay[layout.band_h:, layout.plot_w:], layout.band_h, layout.plot_w)
     return np.concatenate([band[0], strip[0]]), np.concatenate([band[1], strip[1]])

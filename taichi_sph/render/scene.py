@@ -20,7 +20,7 @@ import numpy as np
 
 from ..errors import ConfigError, RenderUnavailable, SPHError
 from .colours import BACKGROUND, TEXT_COLOUR
-from .overlay import FrameLayout
+from .overlay import FrameLayout, rectangles
 
 VULKAN_FIX = "apt-get install -y mesa-vulkan-drivers (Debian)"
 FOV_DEG = 45.0  # vertical field of view of the 3D camera
@@ -279,6 +279,7 @@ class OverlayQuads:
     def __init__(self, window, layout: FrameLayout) -> None:
         self.canvas, self.layout = window.get_canvas(), layout
         self._capacity = 0
+        self._key = None
 
     def _ensure(self, n_vertices: int) -> None:
         import taichi as ti
@@ -289,6 +290,22 @@ class OverlayQuads:
             self._c = ti.Vector.field(3, dtype=ti.f32, shape=self._capacity)
 
     def draw(self, rects: np.ndarray, colours: np.ndarray) -> None:
+        """Draw rectangles [r0, r1, c0, c1) (frame pixels) in uint8 colours."""
+        self._upload(rects, colours)
+        self._key = None
+        with quiet_taichi():
+            self.canvas.triangles(self._v, per_vertex_color=self._c)
+
+    def draw_image(self, make_image, r_off: int, c_off: int, key=None) -> None:
+        """Draw the image `make_image()` returns ((h, w, 3) uint8) with its top-left pixel at (r_off, c_off).
+        With a `key` equal to the last one the image is taken to be unchanged: not made or uploaded again."""
+        if key is None or key != self._key or self._capacity == 0:
+            self._upload(*rectangles(make_image(), r_off, c_off))
+        self._key = key
+        with quiet_taichi():
+            self.canvas.triangles(self._v, per_vertex_color=self._c)
+
+    def _upload(self, rects: np.ndarray, colours: np.ndarray) -> None:
         L = self.layout
         r0, r1, c0, c1 = (rects[:, i].astype(np.float64) for i in range(4))
         x0, x1 = c0 / L.width, c1 / L.width
@@ -301,5 +318,3 @@ class OverlayQuads:
         c[:tri.shape[0]] = np.repeat(colours.astype(np.float32) / 255.0, 6, axis=0)
         self._v.from_numpy(v)
         self._c.from_numpy(c)
-        with quiet_taichi():
-            self.canvas.triangles(self._v, per_vertex_color=self._c)
