@@ -63,7 +63,7 @@ def no_display_error(reason: str, config: str = "CONFIG") -> RenderUnavailable:
 def panel_rect(layout) -> tuple[float, float, float, float]:
     """The controls panel (x, y, width, height) as fractions of the window, y down: top right of the plot."""
     L = layout
-    pw, ph = min(320, 0.45 * L.width), min(250, 0.7 * L.plot_h)
+    pw, ph = min(320, 0.45 * L.width), min(330, 0.75 * L.plot_h)
     return (L.plot_w - pw - 4) / L.width, (L.band_h + 4) / L.height, pw / L.width, ph / L.height
 
 
@@ -197,7 +197,7 @@ class Viewer:
         s = self.solver
         lines = [f"t = {s.t:.4f} s, step {s.step_count}, {self.status}",
                  f"{sps:.0f} steps/s, real time x{rtf:.3g}",
-                 f"{fps:.1f} frames/s: {self.steps_last} steps {1e3 * self.step_s:.1f} ms"
+                 f"{fps:.1f} frames/s: {self.steps_last} step(s) {1e3 * self.step_s:.1f} ms"
                  f" + drawing {1e3 * self.draw_s:.1f} ms"]
         if not self.paused and 0.0 < fps < TARGET_FPS:
             one_step = self.step_s / max(self.steps_last, 1)

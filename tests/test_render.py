@@ -193,3 +193,25 @@ def test_render_run_rerenders_frames_and_video(tmp_path):
     written = render_run(tmp_path, RenderSettings(width=200, height=120, video="none"))
     assert [p.name for p in written] == ["frame_00000.png", "frame_00001.png"]
     assert _coloured(iio.imread(written[0])).mean() > 0.02
+
+
+def test_3d_dam_break_fluid_not_hidden_by_the_near_wall():
+    """The tank's near walls are cut away: the fluid column fills the frame's middle third. With the walls
+    culled against the domain box (which lies outside the tank) instead, the front wall hid the column's
+    lower half and this fraction was 0.094 (now 0.19)."""
+    from taichi_sph.config import load_config
+    from taichi_sph.geometry import build_particles
+
+    from pathlib import Path
+
+    cfg = load_config(Path(__file__).resolve().parents[1] / "configs/dam_break_3d.yaml", ["particles.dx=0.04"])
+    a = build_particles(cfg)
+    s = RenderSettings(width=480, height=270, colour_by="kind")
+    with FrameRenderer(s, 3, cfg.domain.lo, cfg.domain.hi, a.n, cfg.particles.dx) as r:
+        plot = _plot(r, r.render(a.x, a.kind, {}, t=0.0)).astype(int)
+    h, w = plot.shape[:2]
+    mid = plot[h // 3:2 * h // 3, w // 3:2 * w // 3]
+    fluid_blue = (mid[..., 2] - mid[..., 0]) > 60  # lit FLUID_BLUE; walls are grey, background white
+    assert fluid_blue.mean() > 0.14
+    grey = np.abs(plot - np.round(np.array(render.WALL_GREY) * 255)).max(axis=-1) < 40
+    assert grey.mean() > 0.02, "the far walls and the floor are still drawn"
