@@ -215,3 +215,36 @@ def test_3d_dam_break_fluid_not_hidden_by_the_near_wall():
     assert fluid_blue.mean() > 0.14
     grey = np.abs(plot - np.round(np.array(render.WALL_GREY) * 255)).max(axis=-1) < 40
     assert grey.mean() > 0.02, "the far walls and the floor are still drawn"
+
+
+def test_side_by_side_panels_share_one_colour_range(tmp_path):
+    """Run b moves twice as fast as run a everywhere. Each with its own range, the two panels would be the
+    same picture; with one range the legends agree and b's fluid is brighter (higher on viridis)."""
+    from taichi_sph.render import render_side_by_side
+
+    dx = 0.02
+    x, kind = _tank_scene(dx)
+    cfg = {"dim": 2, "domain": {"lo": [-3 * dx, -3 * dx], "hi": [0.74, 0.5]}, "particles": {"dx": dx},
+           "fluid": {"rho0": 1000.0}}
+    speed = np.where(kind == 0, np.linspace(0.0, 1.0, len(x)), 0.0)
+    for label, factor in (("a", 1.0), ("b", 2.0)):
+        run = tmp_path / label
+        (run / "snapshots").mkdir(parents=True)
+        (run / "config.yaml").write_text(yaml.safe_dump(cfg))
+        v = np.stack([factor * speed, np.zeros(len(x))], axis=1)
+        for step, t in ((0, 0.0), (7 if label == "a" else 3, 0.1)):  # step numbers differ between solvers
+            np.savez(run / "snapshots" / f"snap_{step:07d}.npz", t=np.float64(t), step=np.int64(step), x=x, v=v,
+                     rho=np.full(len(x), 1000.0), p=np.zeros(len(x)), kind=kind)
+    settings = RenderSettings(width=240, height=160)
+    out = render_side_by_side({"a": tmp_path / "a", "b": tmp_path / "b"}, tmp_path / "sbs", settings)
+    assert len(out) == 2
+    layout = render.FrameLayout.for_size(240, 160)
+    frame = iio.imread(out[-1])[..., :3]
+    label_h = frame.shape[0] - layout.height
+    a = frame[label_h:, :240]
+    b = frame[label_h:, 240 + 8:240 + 8 + 240]
+    strip = np.s_[layout.band_h:, layout.plot_w:]
+    assert (a[strip] == b[strip]).all(), "one legend: the same range and numbers in both panels"
+    plot = np.s_[layout.band_h:, :layout.plot_w]
+    brightness = [float(p[plot][_coloured(p[plot])].astype(float).sum(axis=-1).mean()) for p in (a, b)]
+    assert brightness[1] > brightness[0] + 60, brightness

@@ -90,6 +90,13 @@ def auto_range(c: np.ndarray, fluid: np.ndarray) -> tuple[float, float]:
     return lo, hi
 
 
+def frame_range(kind: np.ndarray, values: Mapping[str, np.ndarray], colour_by: str) -> tuple[float, float]:
+    """The range a frame picks for itself (`auto_range` of the fluid; (0, 1) for "kind")."""
+    if colour_by == "kind":
+        return 0.0, 1.0
+    return auto_range(colour_values(values, kind, colour_by), np.asarray(kind) == 0)
+
+
 def shared_range(ranges: list[tuple[float, float]]) -> tuple[float, float]:
     """One range that holds several: pictures drawn with it agree (equal colours mean equal values)."""
     return min(r[0] for r in ranges), max(r[1] for r in ranges)
@@ -106,7 +113,7 @@ def particle_colours(kind: np.ndarray, values: Mapping[str, np.ndarray], colour_
         rng = (0.0, 1.0)
     else:
         c = colour_values(values, kind, colour_by)
-        rng = tuple(map(float, rng)) if rng is not None else auto_range(c, fluid)
+        rng = tuple(map(float, rng)) if rng is not None else frame_range(kind, values, colour_by)
         rgb[:] = colormap((c - rng[0]) / (rng[1] - rng[0]))
     rgb[~fluid] = WALL_GREY
     return rgb, rng
