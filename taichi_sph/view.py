@@ -109,6 +109,8 @@ class Viewer:
         self.steps_last = 0
         self.draw_s = 0.0  # drawing time of the last frame
         self.rate = Rate()
+        self._single = self._reset = False  # asked for by a key or button, done in the next frame
+        self._drag_from = None
 
     # -- set-up ---------------------------------------------------------------------------------
     def _new_solver(self):
@@ -239,30 +241,33 @@ class Viewer:
         x0, y0, w, h = self.panel
         return self.show_panel and x0 <= cursor[0] <= x0 + w and 1.0 - y0 - h <= cursor[1] <= 1.0 - y0
 
+    def on_key(self, key: str) -> None:
+        """A key press: space, s, r, c, w, h, +/-, Escape (GGUI key names)."""
+        from .render.settings import COLOUR_FIELDS
+
+        if key == " ":
+            self._toggle_pause()
+        elif key == "s":
+            self._single = True
+        elif key == "r":
+            self._reset = True
+        elif key == "c":
+            self.colour_by = COLOUR_FIELDS[(COLOUR_FIELDS.index(self.colour_by) + 1) % len(COLOUR_FIELDS)]
+        elif key == "w":
+            self.drawer.show_walls = not self.drawer.show_walls
+        elif key == "h":
+            self.show_panel = not self.show_panel
+        elif key in ("=", "+", "-") and self.cfg.dim == 3:
+            self.drawer.camera.zoom(0.9 if key != "-" else 1.1)
+        elif key == "Escape":
+            self.window.running = False
+
     def _input(self) -> None:
         import taichi as ti
 
-        from .render.settings import COLOUR_FIELDS
-
         w = self.window
         for e in w.get_events(ti.ui.PRESS):
-            key = e.key
-            if key == ti.ui.SPACE:
-                self._toggle_pause()
-            elif key == "s":
-                self._single = True
-            elif key == "r":
-                self._reset = True
-            elif key == "c":
-                self.colour_by = COLOUR_FIELDS[(COLOUR_FIELDS.index(self.colour_by) + 1) % len(COLOUR_FIELDS)]
-            elif key == "w":
-                self.drawer.show_walls = not self.drawer.show_walls
-            elif key == "h":
-                self.show_panel = not self.show_panel
-            elif key in ("=", "+", "-") and self.cfg.dim == 3:
-                self.drawer.camera.zoom(0.9 if key != "-" else 1.1)
-            elif key == ti.ui.ESCAPE:
-                w.running = False
+            self.on_key(e.key)
         if self.cfg.dim != 3:
             return
         cursor = np.asarray(w.get_cursor_pos(), dtype=np.float64)
@@ -290,8 +295,6 @@ class Viewer:
 
             folder = RunFolder(self.record_dir).prepare()
             folder.write_config(to_dict(self.cfg))
-        self._single = self._reset = False
-        self._drag_from = None
         shown = 0
         wall0 = time.perf_counter()
         step_costs: list[float] = []  # per frame, seconds

@@ -23,7 +23,7 @@ from taichi_sph.cli import main
 from taichi_sph.config import load_config
 from taichi_sph.geometry import build_particles
 from taichi_sph.render import VIRIDIS, WALL_GREY, FrameLayout, FrameRenderer, RenderSettings, particle_values
-from taichi_sph.view import display_problem, panel_rect
+from taichi_sph.view import Viewer, display_problem, panel_rect
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL_2D = ["--set", "particles.dx=0.05", "--set", "render.width=480", "--set", "render.height=270"]
@@ -176,3 +176,37 @@ def test_view_3d_frame_matches_offscreen_and_shows_the_fluid(xvfb_display, tmp_p
     f = shown.astype(int)
     blue = (f[..., 2] - f[..., 0] > 60) & keep
     assert blue[r.band_h:].mean() > 0.01, "fluid visible"
+
+
+def test_keys_and_readout_without_a_window():
+    """The controls and the readout's 'why below 20 frames/s', on a viewer whose solver and drawer are stand-ins."""
+    from types import SimpleNamespace
+
+    from taichi_sph.render.scene import OrbitCamera
+
+    cfg = load_config(ROOT / "configs/dam_break_3d.yaml")
+    v = Viewer(cfg)
+    v.solver = SimpleNamespace(t=0.1, step_count=12, n=1000)
+    v.drawer = SimpleNamespace(show_walls=True, camera=OrbitCamera((0.0, -3.0, 0.0), (0.0, 0.0, 0.0)))
+    v.on_key(" ")
+    assert v.paused and v.status == "paused"
+    v.on_key(" ")
+    assert not v.paused and v.status == "running"
+    assert [v.on_key("c") or v.colour_by for _ in range(4)] == ["pressure", "density_error", "kind", "speed"]
+    v.on_key("w")
+    assert v.drawer.show_walls is False
+    v.on_key("s"), v.on_key("r")
+    assert v._single and v._reset
+    v.on_key("-")
+    assert np.linalg.norm(v.drawer.camera.position) == pytest.approx(3.3)
+    v.drawer.camera.orbit(0.5, 0.3)
+    assert np.linalg.norm(v.drawer.camera.position) == pytest.approx(3.3)
+    assert v.drawer.camera.position[2] > 0.5, "pitched up"
+
+    v.rate.samples.extend((0.1 * i, 12 + i, 0.1 + 1e-4 * i) for i in range(11))  # 10 frames/s, 10 steps/s
+    v.steps_last, v.step_s, v.draw_s = 1, 0.080, 0.020
+    text = "\n".join(v.readout())
+    assert "10 steps/s" in text and "real time x0.001" in text and "10.0 frames/s" in text
+    assert "below 20 frames/s: one step alone takes 80 ms" in text
+    v.step_s, v.draw_s = 0.010, 0.090
+    assert "below 20 frames/s: drawing 1000 particles takes 90 ms" in "\n".join(v.readout())
