@@ -12,6 +12,11 @@ if ! ls /usr/share/vulkan/icd.d/*.json /etc/vulkan/icd.d/*.json >/dev/null 2>&1;
   need+=(mesa-vulkan-drivers libvulkan1)
 fi
 if ! ldconfig -p 2>/dev/null | grep -q "libX11.so.6"; then need+=(libx11-6); fi
+# the live window (GLFW inside Taichi) loads these X libraries at run time
+for lib in libXrandr.so.2:libxrandr2 libXinerama.so.1:libxinerama1 libXcursor.so.1:libxcursor1 libXi.so.6:libxi6 \
+           libXxf86vm.so.1:libxxf86vm1 libX11-xcb.so.1:libx11-xcb1; do
+  if ! ldconfig -p 2>/dev/null | grep -q "${lib%%:*}"; then need+=("${lib##*:}"); fi
+done
 if ! command -v Xvfb >/dev/null 2>&1; then need+=(xvfb); fi
 if ! command -v xauth >/dev/null 2>&1; then need+=(xauth); fi
 if ! python3 -c "import ensurepip, venv" >/dev/null 2>&1; then need+=(python3-venv); fi
