@@ -8,7 +8,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 need=()
-if ! ls /usr/share/vulkan/icd.d/*.json /etc/vulkan/icd.d/*.json >/dev/null 2>&1; then
+# (either folder may hold the driver files: `ls a/*.json b/*.json` fails when one of them is empty)
+if ! compgen -G "/usr/share/vulkan/icd.d/*.json" >/dev/null && ! compgen -G "/etc/vulkan/icd.d/*.json" >/dev/null; then
   need+=(mesa-vulkan-drivers libvulkan1)
 fi
 if ! ldconfig -p 2>/dev/null | grep -q "libX11.so.6"; then need+=(libx11-6); fi
