@@ -29,8 +29,8 @@ from .errors import RenderUnavailable
 
 FRAME_BUDGET_S = 1.0 / 30.0  # stepping fills the frame up to this, drawing included
 TARGET_FPS = 20.0
-CONTROLS = ("keys: space pause/resume, s step, r reset", "c colour field, w walls, h panel, esc quit")
-CAMERA_CONTROLS = "left-drag orbit, right-drag or +/- zoom"
+CONTROLS = ("keys: space pause/resume,", "s step, r reset, c colour,", "w walls, h panel, esc quit")
+CAMERA_CONTROLS = ("left-drag: orbit,", "right-drag or +/-: zoom")
 
 
 def display_problem() -> str | None:
@@ -108,6 +108,7 @@ class Viewer:
         self.step_s = 0.0  # stepping time in the last frame
         self.steps_last = 0
         self.draw_s = 0.0  # drawing time of the last frame
+        self.record_s = 0.0  # time writing the last frame to the run folder (--record)
         self.rate = Rate()
         self._single = self._reset = False  # asked for by a key or button, done in the next frame
         self._drag_from = None
@@ -195,18 +196,23 @@ class Viewer:
                                     key=L.legend_key(colour_by, rng))
 
     def readout(self) -> list[str]:
+        """The panel's text, in lines short enough for it: time, rates, a frame's cost, why below 20 frames/s."""
         fps, sps, rtf = self.rate.rates()
         s = self.solver
-        lines = [f"t = {s.t:.4f} s, step {s.step_count}, {self.status}",
-                 f"{sps:.0f} steps/s, real time x{rtf:.3g}",
-                 f"{fps:.1f} frames/s: {self.steps_last} step(s) {1e3 * self.step_s:.1f} ms"
-                 f" + drawing {1e3 * self.draw_s:.1f} ms"]
+        status = "resetting: compiling again" if self.status == "resetting" else self.status
+        lines = [f"t = {s.t:.4f} s, step {s.step_count}", status,
+                 f"{sps:.0f} steps/s, real time x{rtf:.2g}",
+                 f"{fps:.1f} frames/s; a frame:",
+                 f"  stepping {1e3 * self.step_s:.1f} ms ({self.steps_last} steps)",
+                 f"  drawing {1e3 * self.draw_s:.1f} ms"]
+        if self.record_dir is not None:
+            lines.append(f"  writing it {1e3 * self.record_s:.1f} ms")
         if not self.paused and 0.0 < fps < TARGET_FPS:
-            one_step = self.step_s / max(self.steps_last, 1)
-            why = (f"one step alone takes {1e3 * one_step:.0f} ms" if one_step > 0.5 / TARGET_FPS
-                   else f"drawing {s.n} particles takes {1e3 * self.draw_s:.0f} ms")
-            lines.append(f"below {TARGET_FPS:.0f} frames/s: {why}")
-        lines.append(f"colour: {self.colour_by}; walls {'on' if self.drawer.show_walls else 'off'}")
+            costs = {"one step takes": self.step_s / max(self.steps_last, 1),
+                     f"drawing {s.n} particles:": self.draw_s, "writing frames (--record):": self.record_s}
+            why = max(costs, key=costs.get)  # the largest cost is the reason
+            lines += [f"below {TARGET_FPS:.0f} frames/s because", f"  {why} {1e3 * costs[why]:.0f} ms"]
+        lines.append(f"colour: {self.colour_by}, walls {'on' if self.drawer.show_walls else 'off'}")
         return lines
 
     def _panel(self) -> None:
@@ -228,8 +234,8 @@ class Viewer:
             self.drawer.show_walls = g.checkbox("walls", self.drawer.show_walls)
             for line in CONTROLS:
                 g.text(line)
-            if self.cfg.dim == 3:
-                g.text(CAMERA_CONTROLS)
+            for line in CAMERA_CONTROLS if self.cfg.dim == 3 else ():
+                g.text(line)
 
     # -- input ----------------------------------------------------------------------------------
     def _toggle_pause(self) -> None:
@@ -299,13 +305,18 @@ class Viewer:
         wall0 = time.perf_counter()
         step_costs: list[float] = []  # per frame, seconds
         draw_costs: list[float] = []
+        record_costs: list[float] = []
         try:
             while self.window.running and (self.frames is None or shown < self.frames):
                 self._input()
-                if self._reset:
-                    self.solver = self._new_solver()
+                if self._reset and self.status == "resetting":  # the frame saying so is on screen: do it
+                    self.solver = self._new_solver()  # a new solver compiles its kernels again (seconds)
                     self.paused, self.status, self._reset = False, "running", False
-                if not self.paused or self._single:
+                elif self._reset:
+                    self.status = "resetting"
+                if self._reset:
+                    self.step_s, self.steps_last = 0.0, 0
+                elif not self.paused or self._single:
                     self._advance(self._single)
                 else:
                     self.step_s, self.steps_last = 0.0, 0
@@ -314,14 +325,17 @@ class Viewer:
                 self._draw()
                 if self.show_panel:
                     self._panel()
+                r0 = time.perf_counter()
                 if folder is not None:
                     path = folder.frames_dir / f"frame_{shown:05d}.png"
                     self.window.save_image(str(path))
                     frames_written.append(path)
+                self.record_s = time.perf_counter() - r0
                 self.window.show()
-                self.draw_s = time.perf_counter() - d0
+                self.draw_s = time.perf_counter() - d0 - self.record_s
                 step_costs.append(self.step_s)
                 draw_costs.append(self.draw_s)
+                record_costs.append(self.record_s)
                 self.rate.add(self.solver.step_count, self.solver.t)
                 shown += 1
         finally:
@@ -333,10 +347,11 @@ class Viewer:
             self._finish_record(folder, frames_written)
         if not self.quiet and shown:
             # medians: the first frame also compiles kernels and shaders
-            step_ms, draw_ms = 1e3 * float(np.median(step_costs)), 1e3 * float(np.median(draw_costs))
+            step_ms, draw_ms, rec_ms = (1e3 * float(np.median(c)) for c in (step_costs, draw_costs, record_costs))
+            rec = f" + {rec_ms:.1f} ms writing" if folder is not None else ""
             print(f"view: {shown} frames in {wall:.2f} s ({shown / max(wall, 1e-9):.1f} frames/s, first frame "
                   f"{1e3 * (step_costs[0] + draw_costs[0]):.0f} ms); median frame {step_ms:.1f} ms stepping + "
-                  f"{draw_ms:.1f} ms drawing = {1e3 / max(step_ms + draw_ms, 1e-9):.1f} frames/s; "
+                  f"{draw_ms:.1f} ms drawing{rec} = {1e3 / max(step_ms + draw_ms + rec_ms, 1e-9):.1f} frames/s; "
                   f"{self.solver.step_count} steps to t = {self.solver.t:.4g} s")
         return 0
 

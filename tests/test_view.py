@@ -206,7 +206,11 @@ def test_keys_and_readout_without_a_window():
     v.rate.samples.extend((0.1 * i, 12 + i, 0.1 + 1e-4 * i) for i in range(11))  # 10 frames/s, 10 steps/s
     v.steps_last, v.step_s, v.draw_s = 1, 0.080, 0.020
     text = "\n".join(v.readout())
-    assert "10 steps/s" in text and "real time x0.001" in text and "10.0 frames/s" in text
-    assert "below 20 frames/s: one step alone takes 80 ms" in text
+    assert "10 steps/s, real time x0.001" in text and "10.0 frames/s" in text
+    assert "stepping 80.0 ms (1 steps)\n  drawing 20.0 ms" in text
+    assert "below 20 frames/s because\n  one step takes 80 ms" in text
     v.step_s, v.draw_s = 0.010, 0.090
-    assert "below 20 frames/s: drawing 1000 particles takes 90 ms" in "\n".join(v.readout())
+    assert "below 20 frames/s because\n  drawing 1000 particles: 90 ms" in "\n".join(v.readout())
+    v.record_dir, v.record_s = Path("rec"), 0.120
+    assert "below 20 frames/s because\n  writing frames (--record): 120 ms" in "\n".join(v.readout())
+    assert max(len(line) for line in v.readout()) <= 36, "fits the panel"
