@@ -170,7 +170,7 @@ class Viewer:
     def _advance(self, single: bool) -> None:
         """Step for the frame's budget (at least once), or once when `single`; stop at t_end or on NaN."""
         solver, t_end = self.solver, self.cfg.time.t_end
-        budget = 0.0 if single else max(FRAME_BUDGET_S - self.draw_s, 0.0)
+        budget = 0.0 if single else max(FRAME_BUDGET_S - self.draw_s - self.record_s, 0.0)
         t0 = time.perf_counter()
         steps = 0
         while solver.t < t_end - 1e-12:
@@ -181,9 +181,9 @@ class Viewer:
                 break
         self.step_s, self.steps_last = time.perf_counter() - t0, steps
         if solver.read_stats()["non_finite"] > 0:
-            self.paused, self.status = True, "unstable (NaN): press r to reset"
+            self.paused, self.status = True, "unstable: NaN (r: reset)"
         elif solver.t >= t_end - 1e-12:
-            self.paused, self.status = True, f"t_end = {t_end:g} s reached: press r to reset"
+            self.paused, self.status = True, f"t_end {t_end:g} s reached (r: reset)"
 
     def _draw_state(self) -> tuple[np.ndarray, np.ndarray, dict]:
         """Positions, kinds and the colour field's values, in particle-id order (as snapshots hold them, so

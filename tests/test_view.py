@@ -214,3 +214,20 @@ def test_keys_and_readout_without_a_window():
     v.record_dir, v.record_s = Path("rec"), 0.120
     assert "below 20 frames/s because\n  writing frames (--record): 120 ms" in "\n".join(v.readout())
     assert max(len(line) for line in v.readout()) <= 36, "fits the panel"
+
+
+def test_stepping_stops_and_pauses_at_t_end():
+    """Each frame steps within its budget (at least once) and lands on t_end, where the view pauses."""
+    cfg = load_config(ROOT / "configs/column_1d.yaml", ["time.t_end=0.01"])
+    v = Viewer(cfg)
+    v.solver = v._new_solver()
+    v._advance(single=True)
+    assert v.steps_last == 1 and v.solver.step_count == 1
+    for _ in range(10000):
+        if v.paused:
+            break
+        v._advance(single=False)
+    assert v.paused and v.status == "t_end 0.01 s reached (r: reset)"
+    assert v.solver.t == pytest.approx(0.01, abs=1e-12)
+    v.on_key(" ")
+    assert v.paused, "nothing left to run: space does not resume"
