@@ -5,8 +5,8 @@ particles, render.overlay for the label and colour bar, drawn here as quads inst
 an image), so a window frame and an offscreen frame of the same state agree pixel for pixel outside
 the controls panel.
 
-Each frame steps the solver for as long as the frame budget (1/30 s minus the last drawing time)
-allows, at least one step, then draws. The panel reads out the time, steps/s, the real-time factor,
+Each frame steps the solver for as long as the frame budget (1/30 s minus the last frame's drawing
+and writing time) allows, at least one step, then draws. The panel reads out the time, steps/s, the real-time factor,
 frames/s and what a frame costs (stepping and drawing apart).
 
 No display: GLFW cannot start and Taichi ends the whole process with status 1, so the display is
@@ -398,9 +398,12 @@ class Viewer:
 def cmd_view(args) -> int:
     from .cli import _load
 
+    from .errors import UsageError
+
     if args.frames is not None and args.frames < 1:
-        from .errors import UsageError
         raise UsageError(f"--frames must be >= 1, got {args.frames}")
+    if args.out and not args.record:
+        raise UsageError("--out names the run folder of --record; add --record")
     problem = display_problem()  # before anything slow: no display is a one-line answer at once
     if problem is not None:
         raise no_display_error(problem, args.config)

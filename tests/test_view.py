@@ -75,6 +75,8 @@ def test_no_display_is_one_line_and_exit_2(monkeypatch, capsys):
     assert time.perf_counter() - t0 < 5.0, "answers at once, before building the scene"
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "taichi-sph run" in err and "xvfb-run" in err, err
+    assert main(["view", str(ROOT / "configs/dam_break_2d.yaml"), "--out", "x"]) == 2
+    assert "add --record" in capsys.readouterr().err
     monkeypatch.setenv("DISPLAY", ":987")  # no server there
     assert main(["view", str(ROOT / "configs/dam_break_2d.yaml")]) == 2
     assert "cannot open display ':987'" in capsys.readouterr().err
