@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .errors import RenderUnavailable
+from .rewind import SolverMemento
 
 FRAME_BUDGET_S = 1.0 / 30.0  # stepping fills the frame up to this, drawing included
 TARGET_FPS = 20.0
@@ -156,6 +157,7 @@ class Viewer:
 
         init_taichi(self.cfg.arch, self.cfg.precision)
         self.solver = self._new_solver()
+        self.initial = SolverMemento(self.solver)  # reset rewinds to it: no second solver to compile
         self.layout = FrameLayout.for_size(self.settings.width, self.settings.height)
         self.window = scene.open_window(f"taichi-sph view: {self.cfg.name} ({self.cfg.solver})",
                                         self.layout.width, self.layout.height, show=True)
@@ -221,8 +223,7 @@ class Viewer:
         """The panel's text, in lines short enough for it: time, rates, a frame's cost, why below 20 frames/s."""
         fps, sps, rtf = self.rate.rates()
         s = self.solver
-        status = "resetting: compiling again" if self.status == "resetting" else self.status
-        lines = [f"t = {s.t:.4f} s, step {s.step_count}", status,
+        lines = [f"t = {s.t:.4f} s, step {s.step_count}", self.status,
                  f"{sps:.0f} steps/s, real time x{rtf:.2g}",
                  f"{fps:.1f} frames/s; a frame:",
                  f"  stepping {1e3 * self.step_s:.1f} ms ({self.steps_last} steps)",
@@ -334,14 +335,10 @@ class Viewer:
         try:
             while self.window.running and (self.frames is None or shown < self.frames):
                 self._input()
-                if self._reset and self.status == "resetting":  # the frame saying so is on screen: do it
-                    self.solver = self._new_solver()  # a new solver compiles its kernels again (seconds)
-                    self.paused, self.status, self._reset = False, "running", False
-                elif self._reset:
-                    self.status = "resetting"
                 if self._reset:
-                    self.step_s, self.steps_last = 0.0, 0
-                elif not self.paused or self._single:
+                    self.initial.restore()  # the solver as it was before its first step
+                    self.paused, self.status, self._reset = False, "running", False
+                if not self.paused or self._single:
                     self._advance(self._single)
                 else:
                     self.step_s, self.steps_last = 0.0, 0
