@@ -6,8 +6,9 @@ an image), so a window frame and an offscreen frame of the same state agree pixe
 the controls panel.
 
 Each frame steps the solver for as long as the frame budget (1/30 s minus the last frame's drawing
-and writing time) allows, at least one step, then draws. The panel reads out the time, steps/s, the real-time factor,
-frames/s and what a frame costs (stepping and drawing apart).
+and writing time) allows, at least one step, then draws. The panel reads out the time, steps/s, the
+real-time factor, frames/s and what a frame costs (stepping, drawing and writing apart). Reset
+rewinds the solver in memory (rewind.SolverMemento).
 
 No display: GLFW cannot start and Taichi ends the whole process with status 1, so the display is
 checked before the window opens (`display_problem`) and `view` fails with one line (exit 2).
@@ -25,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import RenderUnavailable
+from .errors import RenderUnavailable, UsageError
 from .rewind import SolverMemento
 
 FRAME_BUDGET_S = 1.0 / 30.0  # stepping fills the frame up to this, drawing included
@@ -321,10 +322,10 @@ class Viewer:
         folder = writer = None
         frames_written: list[Path] = []
         if self.record_dir is not None:
-            writer = FrameWriter()
             from .config import to_dict
             from .output import RunFolder
 
+            writer = FrameWriter()
             folder = RunFolder(self.record_dir).prepare()
             folder.write_config(to_dict(self.cfg))
         shown = 0
@@ -394,8 +395,6 @@ class Viewer:
 
 def cmd_view(args) -> int:
     from .cli import _load
-
-    from .errors import UsageError
 
     if args.frames is not None and args.frames < 1:
         raise UsageError(f"--frames must be >= 1, got {args.frames}")
