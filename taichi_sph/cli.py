@@ -191,9 +191,10 @@ def _lazy(module: str, name: str):
 
 
 COMMANDS = {
-    "run": cmd_run, "view": _lazy("view", "cmd_view"), "check": cmd_check, "list": cmd_list, "config-doc": cmd_config_doc, "render": cmd_render,
+    "run": cmd_run, "check": cmd_check, "list": cmd_list, "config-doc": cmd_config_doc, "render": cmd_render,
     "bench": _lazy("bench", "cmd_bench"), "compare": _lazy("compare", "cmd_compare"),
     "sweep": _lazy("sweep", "cmd_sweep"), "stability": _lazy("stability", "cmd_stability"),
+    "view": _lazy("view", "cmd_view"),
 }
 
 
