@@ -1,4 +1,4 @@
-"""`taichi-sph` command line: run | check | list | compare | sweep | stability | bench | render | config-doc.
+"""`taichi-sph` command line: run | view | check | list | compare | sweep | stability | bench | render | config-doc.
 
 User errors (bad config, bad arguments, missing driver) print one line and exit 2; an unstable
 run exits 3; Ctrl-C exits 130 with a checkpoint. Tracebacks are for bugs only.
@@ -39,6 +39,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--t-end", type=float, help="simulated end time [s]")
     p.add_argument("--no-render", action="store_true", help="skip frames and video (the renderer is not even imported)")
     p.add_argument("--explain", action="store_true", help="print the compiled-in features and the a-priori checks, then exit")
+    _add_common(p)
+
+    p = sub.add_parser("view", help="run a scene live in a window, with controls (needs a display)")
+    p.add_argument("config", help="YAML config file (see `taichi-sph list`)")
+    p.add_argument("--solver", choices=("wcsph", "isph"), help="override the config's solver")
+    p.add_argument("--record", action="store_true", help="write the shown frames, video and final state to a run folder")
+    p.add_argument("--out", help="run folder for --record (default renders/<config name>-<solver>-view)")
+    p.add_argument("--frames", type=int, help="close after this many frames (tests, measurements)")
     _add_common(p)
 
     p = sub.add_parser("check", help="validate a config and print the a-priori warnings")
@@ -186,6 +194,7 @@ COMMANDS = {
     "run": cmd_run, "check": cmd_check, "list": cmd_list, "config-doc": cmd_config_doc, "render": cmd_render,
     "bench": _lazy("bench", "cmd_bench"), "compare": _lazy("compare", "cmd_compare"),
     "sweep": _lazy("sweep", "cmd_sweep"), "stability": _lazy("stability", "cmd_stability"),
+    "view": _lazy("view", "cmd_view"),
 }
 
 

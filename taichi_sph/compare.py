@@ -5,7 +5,8 @@ Both runs get the same particles and output times (only `solver` differs). The r
 time, steps, mean/min dt, particle-steps/s, max density error, pressure noise
 std(p - p_reference) where the scene has an analytic pressure, and PPE iterations for ISPH; then
 which solver reached the lower error per unit of wall time. `plots/<column>.png` draws every
-timeseries column for both solvers; `side_by_side.mp4` puts the two runs' frames next to each other.
+timeseries column for both solvers; `side_by_side.mp4` draws the two runs next to each other with
+one colour range (from snapshots written at every frame time).
 
 `run_case(cfg, out_dir) -> summary` is the one unit of work that compare, sweep and stability
 dispatch: it never raises for a broken run (a crashing solver comes back as status "failed").
@@ -202,8 +203,9 @@ def compare(cfg: Config, out_dir: Path, *, solvers: tuple[str, ...] = SOLVERS, r
     out_dir.mkdir(parents=True, exist_ok=True)
     reports: dict[str, dict] = {}
     configs: dict[str, Config] = {}
+    extra = side_by_side_snapshots(cfg) if render else []
     for solver in solvers:
-        c = derive_config(cfg, [f"solver={solver}"]) if cfg.solver != solver else cfg
+        c = derive_config(cfg, [f"solver={solver}"] * (cfg.solver != solver) + extra)
         configs[solver] = c
         log(f"compare: {cfg.name} with {solver} ...")
         summary = run_case(c, out_dir / solver, render=render, quiet=True)
@@ -237,16 +239,27 @@ def compare(cfg: Config, out_dir: Path, *, solvers: tuple[str, ...] = SOLVERS, r
     return result
 
 
-def _side_by_side_video(configs: dict[str, Config], reports: dict[str, dict], out_dir: Path) -> str | None:
-    """When every run rendered frames: compose them next to each other and assemble a video."""
-    frames = {s: sorted((out_dir / s / "frames").glob("frame_*.png")) for s in reports}
-    if len(frames) < 2 or not all(frames.values()):
-        return None
-    from .plots import side_by_side_frames
-    from .render import assemble_video
+def side_by_side_snapshots(cfg: Config) -> list[str]:
+    """Overrides that make a run write a snapshot at every frame time (the side-by-side video is drawn
+    from them with one colour range for both panels), unless it writes them as often already."""
+    every, snap = cfg.render.every, cfg.output.snapshot_every
+    if not cfg.render.enabled or not every or (snap is not None and snap <= every):
+        return []
+    return [f"output.snapshot_every={every}"]
 
-    composed = side_by_side_frames(frames, out_dir / "side_by_side_frames")
+
+def _side_by_side_video(configs: dict[str, Config], reports: dict[str, dict], out_dir: Path) -> str | None:
+    """When every run wrote snapshots: draw them next to each other, each composed frame with one colour
+    range for all panels (equal colours, equal values), and assemble a video."""
+    from .render import RenderSettings, assemble_video, render_side_by_side
+
+    runs = {s: out_dir / s for s in reports}
+    if len(runs) < 2 or not all(RunFolder(d).list_snapshots() for d in runs.values()):
+        return None
     cfg = next(iter(configs.values()))
+    composed = render_side_by_side(runs, out_dir / "side_by_side_frames", RenderSettings.from_config(cfg.render))
+    if not composed:
+        return None
     fmt = cfg.render.video if cfg.render.video != "none" else "mp4"
     path = assemble_video(composed, out_dir / f"side_by_side.{fmt}", cfg.render.fps)
     return str(path.relative_to(out_dir))
