@@ -138,6 +138,12 @@ class CellMultigrid:
         self.lv_shift = ti.Vector.field(self.dim, ti.i32, n_levels)  # log2 of the factor: parent = i >> shift
         self.lv_offset = ti.field(ti.i32, n_levels)
         self.lv_count = ti.field(ti.i32, n_levels)
+        # the box of cells that hold unknowns, per level (a dam break's fluid fills a tenth of the domain's
+        # cells): the V-cycle's loops visit only these; cells outside are never read (their rows are zero)
+        self.box_lo = ti.Vector.field(self.dim, ti.i32, n_levels)
+        self.box_hi = ti.Vector.field(self.dim, ti.i32, n_levels)
+        self.box_n = ti.Vector.field(self.dim, ti.i32, n_levels)
+        self.box_count = ti.field(ti.i32, n_levels)
         for l, lv in enumerate(self.levels):
             self.lv_n[l], self.lv_stride[l], self.lv_factor[l] = lv.n, lv.strides, lv.factor
             self.lv_shift[l] = tuple(f - 1 for f in lv.factor)
@@ -225,6 +231,17 @@ class CellMultigrid:
         return exists, i
 
     @ti.func
+    def box_cell(self, l, k):
+        """(coordinates, linear index) of the k-th cell of level l's active box (last axis fastest)."""
+        i = self.box_lo[l]
+        rest = k
+        for e in ti.static(range(self.dim)):
+            d = ti.static(self.dim - 1 - e)
+            i[d] += rest % self.box_n[l][d]
+            rest //= self.box_n[l][d]
+        return i, self.linear(l, i)
+
+    @ti.func
     def apply_level(self, l, v: ti.template(), c, i):
         """(A_l v)_c for the cell c (coordinates i) of level l, v a flat field."""
         base = self.lv_offset[l]
@@ -249,14 +266,34 @@ class CellMultigrid:
     def assemble(self, serial: bool) -> None:
         """A_1 = P^T A P from the particles' pair coefficients, then A_{l+1} = P^T A_l P down the levels."""
         self.galerkin_from_particles(serial)
+        self.active_boxes(len(self.levels))
         for l in range(len(self.levels) - 1):
             self.galerkin_coarsen(l, serial or self.levels[l + 1].serial)
+
+    @ti.kernel
+    def active_boxes(self, n_levels: ti.i32):
+        """Each coarser level's box holds the parents of the finer box (level 1's was reduced by
+        galerkin_from_particles)."""
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            for l in range(n_levels):
+                if l > 0:
+                    self.box_lo[l] = self.box_lo[l - 1] >> self.lv_shift[l - 1]
+                    self.box_hi[l] = self.box_hi[l - 1] >> self.lv_shift[l - 1]
+                n = ti.max(self.box_hi[l] - self.box_lo[l] + 1, 0)
+                self.box_n[l] = n
+                count = 1
+                for d in ti.static(range(self.dim)):
+                    count *= n[d]
+                self.box_count[l] = count
 
     @ti.kernel
     def galerkin_from_particles(self, serial: ti.template()):
         """A_1[I, I] = sum_{a in I} A_aa, A_1[I, J] = -sum_{a in I, b in J} coeff_ab."""
         E = self.ppe
         NS = self.ppe.nsearch
+        self.box_lo[0] = ti.Vector(self.levels[0].n)
+        self.box_hi[0] = -ti.Vector.one(ti.i32, self.dim)
         ti.loop_config(serialize=serial)
         for c in range(self.top_count):
             row = ti.Vector.zero(float, self.n_slots)
@@ -271,6 +308,10 @@ class CellMultigrid:
             for s in ti.static(range(self.n_slots)):
                 self.stencil[c, s] = row[s]
             self.dinv[c] = self.inverse_diagonal(row)
+            if row[ti.static(self.center)] > 0.0:
+                for d in ti.static(range(self.dim)):
+                    ti.atomic_min(self.box_lo[0][d], ic[d])
+                    ti.atomic_max(self.box_hi[0][d], ic[d])
 
     @ti.kernel
     def galerkin_coarsen(self, l: ti.i32, serial: ti.template()):
@@ -311,7 +352,8 @@ class CellMultigrid:
         E = self.ppe
         NS = self.ppe.nsearch
         ti.loop_config(serialize=serial)
-        for c in range(self.top_count):
+        for k in range(self.box_count[0]):
+            _, c = self.box_cell(0, k)
             acc = 0.0
             for a in range(NS.cell_start[c], NS.cell_start[c + 1]):
                 if E.role[a] == ti.static(self.unknown):
@@ -359,13 +401,15 @@ class CellMultigrid:
         (the same number before and after the coarse correction, so the V-cycle stays symmetric)."""
         base = self.lv_offset[l]
         ti.loop_config(serialize=serial)
-        for c in range(self.lv_count[l]):
+        for k in range(self.box_count[l]):
+            i, c = self.box_cell(l, k)
             swept = 0.0
             if self.dinv[base + c] > 0.0:
-                swept = v[base + c] + self.omega * self.dinv[base + c] * (self.b[base + c] - self.apply_level(l, v, c, self.coord(l, c)))
+                swept = v[base + c] + self.omega * self.dinv[base + c] * (self.b[base + c] - self.apply_level(l, v, c, i))
             self.swept[base + c] = swept
         ti.loop_config(serialize=serial)
-        for c in range(self.lv_count[l]):
+        for k in range(self.box_count[l]):
+            _, c = self.box_cell(l, k)
             v[base + c] = self.swept[base + c]
 
     @ti.kernel
@@ -373,8 +417,8 @@ class CellMultigrid:
         """b_{l+1} = P^T (b_l - A_l x_l), then x_{l+1} = omega D^-1 b_{l+1}."""
         fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
         ti.loop_config(serialize=serial)
-        for C in range(self.lv_count[l + 1]):
-            iC = self.coord(l + 1, C)
+        for k in range(self.box_count[l + 1]):
+            iC, C = self.box_cell(l + 1, k)
             acc = 0.0
             for ch in range(ti.static(2 ** self.dim)):
                 exists, i = self.child(l, iC, ch)
@@ -390,10 +434,10 @@ class CellMultigrid:
         """u = x_l + s P y_{l+1}, y_l = u + omega D^-1 (b_l - A_l u), u of the neighbours formed on the fly."""
         fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
         ti.loop_config(serialize=serial)
-        for c in range(self.lv_count[l]):
+        for k in range(self.box_count[l]):
+            i, c = self.box_cell(l, k)
             y = 0.0
             if self.dinv[fine + c] > 0.0:  # empty cells stay 0
-                i = self.coord(l, c)
                 u = self.x[fine + c] + self.scale * self.y[coarse + self.linear(l + 1, self.parent(l, i))]
                 au = 0.0
                 for s in range(self.n_slots):
