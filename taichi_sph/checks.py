@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import AUTO, Config
+from .errors import PreflightError
 from .geometry import lattice_neighbour_count
 from .kernels import support_factor
 
@@ -164,3 +165,21 @@ def a_priori_checks(cfg: Config) -> list[CheckResult]:
 def severe_checks(cfg: Config) -> list[CheckResult]:
     """The checks that make a run pointless (stability's reason to refuse it)."""
     return [c for c in a_priori_checks(cfg) if c.severe]
+
+
+def refusals(cfg: Config, *, render: bool = False) -> list[str]:
+    """Why a run of `cfg` would be refused: not enough memory (memory.py), then every severe check."""
+    from .memory import preflight
+    _, memory_line = preflight(cfg, render=render)
+    lines = [memory_line] if memory_line else []
+    return lines + [c.message for c in severe_checks(cfg)]
+
+
+def preflight(cfg: Config, *, force: bool = False, render: bool = False) -> None:
+    """Refuse (PreflightError: one line, exit 2) a run that does not fit in memory or cannot give a
+    meaningful result, unless `force`."""
+    if force:
+        return
+    lines = refusals(cfg, render=render)
+    if lines:
+        raise PreflightError(f"{cfg.name}: refused: " + "; ".join(lines) + " (--force runs anyway)")

@@ -39,6 +39,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--t-end", type=float, help="simulated end time [s]")
     p.add_argument("--no-render", action="store_true", help="skip frames and video (the renderer is not even imported)")
     p.add_argument("--explain", action="store_true", help="print the compiled-in features and the a-priori checks, then exit")
+    p.add_argument("--force", action="store_true",
+                   help="run even when the memory pre-flight or a severe a-priori check refuses the set-up")
+    p.add_argument("--overwrite", action="store_true", help="replace the output of a previous run in the run folder")
     _add_common(p)
 
     p = sub.add_parser("check", help="validate a config and print the a-priori warnings")
@@ -97,8 +100,9 @@ def _load(args) -> "object":
 
 
 def cmd_run(args) -> int:
-    from .checks import a_priori_checks
+    from .checks import a_priori_checks, preflight
     cfg = _load(args)
+    preflight(cfg, force=args.force, render=not args.no_render and cfg.render.enabled)
     if args.explain:
         from .features import Features
         from .geometry import build_particles
@@ -131,12 +135,18 @@ def cmd_run(args) -> int:
 
 
 def cmd_check(args) -> int:
-    from .checks import a_priori_checks
+    """Validate, print the memory estimate and the warnings; a set-up `run` would refuse exits 2 with its line."""
+    from .checks import a_priori_checks, preflight
+    from .memory import GIB, host_memory_available, estimate
     cfg = _load(args)
     checks = a_priori_checks(cfg)
     print(f"{args.config}: valid ({cfg.solver}, dim {cfg.dim}, dx {cfg.particles.dx:g}, c0 {cfg.sound_speed:.4g} m/s)")
+    print(f"memory: {estimate(cfg, render=cfg.render.enabled).describe()} "
+          f"({host_memory_available() / GIB:.1f} GiB host memory available)")
     for c in checks:
-        print(f"warning: {c.message}")
+        if not c.severe:
+            print(f"warning: {c.message}")
+    preflight(cfg, render=cfg.render.enabled)
     return 0
 
 
