@@ -54,7 +54,7 @@ def write_checkpoint(path: Path, fields: dict, arrays: dict[str, np.ndarray], me
 
 def _write_array(zf: zipfile.ZipFile, key: str, value: np.ndarray) -> None:
     with zf.open(key + ".npy", "w", force_zip64=True) as f:
-        np.lib.format.write_array(f, np.ascontiguousarray(value), allow_pickle=False)
+        np.lib.format.write_array(f, value if value.flags.c_contiguous else value.copy(), allow_pickle=False)
 
 
 def read_checkpoint(path: Path) -> tuple[dict[str, np.ndarray], dict]:

@@ -55,6 +55,7 @@ class LoopState:
     timeseries_bytes: int = 0             # timeseries.csv size at the checkpoint
     last_checkpoint_t: float | None = None
     resumed_at: list = field(default_factory=list)
+    observed_step: int = -1               # the step whose outputs were written last
 
 
 @dataclass
@@ -242,9 +243,12 @@ class Simulation:
         stats = solver.read_stats()
         try:
             while True:
-                at_output = solver.t >= loop.next_out - 1e-12
-                at_frame = renderer is not None and solver.t >= loop.next_frame - 1e-12
-                at_snap = loop.next_snap is not None and solver.t >= loop.next_snap - 1e-12
+                # once per step: a resumed run has written this step's outputs before its checkpoint
+                fresh = solver.step_count != loop.observed_step
+                loop.observed_step = solver.step_count
+                at_output = fresh and solver.t >= loop.next_out - 1e-12
+                at_frame = fresh and renderer is not None and solver.t >= loop.next_frame - 1e-12
+                at_snap = fresh and loop.next_snap is not None and solver.t >= loop.next_snap - 1e-12
                 if at_output or at_frame or at_snap:
                     state = solver.host_state()
                     if at_output:
