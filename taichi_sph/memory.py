@@ -13,7 +13,8 @@ and a sphere is counted row by row. The bytes follow what the solvers allocate:
 - per cell: the cell-start and cell-count arrays (i32);
 - on the host: the numpy particle arrays the run keeps (float64), the lattice temporaries of the
   largest body while particles are built (a wall box's lattice spans the whole tank it encloses),
-  and the copies taken at output times (state, sort order, snapshot encoding);
+  the copies taken at output times (state, sort order, snapshot encoding) and, beside them, a
+  checkpoint's copy of its largest field (the neighbour list);
 - a fixed baseline (Python, numpy, Taichi and its LLVM compiler).
 
 `HOST_FACTOR` and `BASELINE_BYTES` were calibrated against the peak RSS of dam_break_2d and
@@ -185,7 +186,8 @@ def estimate(cfg: Config, *, render: bool = False, device: bool | None = None) -
     dev = device_bytes_per_particle(cfg, wall, render) * n + 8.0 * cell_count(cfg)
     kept = (2 * cfg.dim + 3) * 8 + 4                  # ParticleArrays (float64) kept by the run
     build = largest * (2 * cfg.dim * 8 + 1)           # meshgrid + stacked points of the largest body
-    outputs = HOST_OUTPUT_BYTES_PER_PARTICLE[cfg.dim] * n
+    # output copies, and a checkpoint's largest single field copy (the neighbour list) beside them
+    outputs = HOST_OUTPUT_BYTES_PER_PARTICLE[cfg.dim] * n + 4 * neighbour_capacity(cfg) * n
     host = BASELINE_BYTES[cfg.dim] + (RENDER_BYTES if render else 0.0) + kept * n + max(build, outputs)
     gpu = on_device(cfg.arch) if device is None else device
     return MemoryEstimate(fluid, wall, neighbour_capacity(cfg), HOST_FACTOR * dev, HOST_FACTOR * host, gpu)
