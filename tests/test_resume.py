@@ -211,3 +211,43 @@ def test_isph_interrupted_run_resumes_within_the_run_to_run_spread(tmp_path, mon
     assert len(t) == resumed.summary["steps"] + 1 and np.all(np.diff(t) > 0) and t[-1] == 0.5
     for key, tol in (("x", 1e-3), ("v", 4e-3), ("p", 30.0)):
         assert np.abs(resumed.final_state[key] - ref.final_state[key]).max() <= tol, key
+
+
+# ----------------------------------------------------------------------------- atomic writes
+class FakeField:
+    def __init__(self, value, fail=False):
+        self.value, self.fail = value, fail
+
+    def to_numpy(self):
+        if self.fail:
+            raise RuntimeError("killed mid-write")
+        return self.value
+
+
+def test_a_checkpoint_that_fails_midway_leaves_the_previous_one(tmp_path):
+    from taichi_sph.checkpoint import write_checkpoint
+    path = tmp_path / CHECKPOINT_NAME
+    write_checkpoint(path, {"solver.x": FakeField(np.arange(6.0).reshape(3, 2)), "solver.g": FakeField(np.float32(2))},
+                     {"solver.stats_host": np.ones(5, np.float32)}, {"t": 0.1})
+    with pytest.raises(RuntimeError):
+        write_checkpoint(path, {"solver.x": FakeField(np.zeros((3, 2))), "solver.y": FakeField(None, fail=True)}, {},
+                         {"t": 0.2})
+    arrays, meta = read_checkpoint(path)
+    assert meta["t"] == 0.1 and meta["format"] == 1
+    assert np.array_equal(arrays["solver.x"], np.arange(6.0).reshape(3, 2))
+    assert arrays["solver.g"].shape == () and arrays["solver.stats_host"].dtype == np.float32
+
+
+def test_summary_is_replaced_atomically(tmp_path, monkeypatch):
+    """A reader never sees half a summary.json: the old one stays until the new one is complete."""
+    import taichi_sph.output as output
+    folder = output.RunFolder(tmp_path)
+    folder.write_summary({"status": "running", "t": 0.1})
+
+    def broken_replace(src, dst):
+        raise OSError("power cut before the rename")
+
+    monkeypatch.setattr(output.os, "replace", broken_replace)
+    with pytest.raises(OSError):
+        folder.write_summary({"status": "ok", "t": 0.2})
+    assert json.loads((tmp_path / "summary.json").read_text()) == {"status": "running", "t": 0.1}
