@@ -210,19 +210,19 @@ def severe_checks(cfg: Config) -> list[CheckResult]:
     return [c for c in a_priori_checks(cfg) if c.severe]
 
 
-def refusals(cfg: Config, *, render: bool = False) -> list[str]:
+def refusals(cfg: Config, *, render: bool = False, severe: bool = True) -> list[str]:
     """Why a run of `cfg` would be refused: not enough memory (memory.py), then every severe check."""
     from .memory import preflight
     _, memory_line = preflight(cfg, render=render)
     lines = [memory_line] if memory_line else []
-    return lines + [c.message for c in severe_checks(cfg)]
+    return lines + ([c.message for c in severe_checks(cfg)] if severe else [])
 
 
-def preflight(cfg: Config, *, force: bool = False, render: bool = False) -> None:
-    """Refuse (PreflightError: one line, exit 2) a run that does not fit in memory or cannot give a
-    meaningful result, unless `force`."""
+def preflight(cfg: Config, *, force: bool = False, render: bool = False, severe: bool = True) -> None:
+    """Refuse (PreflightError: one line, exit 2) a run that does not fit in memory or (`severe`) cannot
+    give a meaningful result, unless `force`."""
     if force:
         return
-    lines = refusals(cfg, render=render)
+    lines = refusals(cfg, render=render, severe=severe)
     if lines:
         raise PreflightError(f"{cfg.name}: refused: " + "; ".join(lines) + " (--force runs anyway)")

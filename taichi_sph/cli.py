@@ -88,6 +88,8 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--solvers", default="wcsph,isph")
         if name in ("compare", "stability"):
             p.add_argument("--no-render", action="store_true")
+        if name in ("compare", "sweep"):
+            p.add_argument("--force", action="store_true", help="run even when the memory pre-flight refuses")
         _add_common(p)
     return parser
 

@@ -193,3 +193,14 @@ def test_a_merely_inaccurate_setup_only_warns(capsys, good_config):
 def test_bad_checkpoint_every(capsys, workdir, good_config, value, fragment):
     line = run_and_check(capsys, workdir, good_config, "--set", f"output.checkpoint_every={value}")[-1]
     assert "key 'output.checkpoint_every'" in line and fragment in line
+
+
+@pytest.mark.parametrize("argv, fragment", [
+    (["compare", "{cfg}", "--set", "particles.dx=0.0005", "--no-render"], "need ~"),
+    (["sweep", "{cfg}", "--dx", "0.05,0.0005", "--solvers", "wcsph"], "at dx = 0.0005) need ~"),
+])
+def test_compare_and_sweep_check_memory_first(capsys, workdir, good_config, monkeypatch, argv, fragment):
+    monkeypatch.setattr(memory, "host_memory_available", lambda: 0.5 * memory.GIB)
+    rc, _, err = cli(capsys, *[a.format(cfg=good_config) for a in argv])
+    assert_user_error(rc, err, "good: refused: ", fragment, "0.5 GiB available", "(--force runs anyway)")
+    assert sorted(p.name for p in workdir.iterdir()) == ["good.yaml"]
