@@ -1,17 +1,32 @@
 """A-priori checks printed before a run and stored in summary.json `warnings`.
 
-Each check judges one thing that can be known before the first step:
+Each check judges one thing that can be known before the first step. A check is `severe` when the
+set-up cannot give a meaningful result: `taichi-sph run` refuses it (exit 2, one line; `--force` runs
+anyway) and `taichi-sph stability` reports it as the reason it refused the case. The rest are warnings
+(merely inaccurate). Thresholds:
 
-- `mach`          WCSPH: Ma = U / c0 (expected speed over sound speed); density errors ~ Ma^2
-- `cfl_number`    the adaptive step's Courant number `time.cfl`
-- `cfl_dt`, `force_dt`, `viscous_dt`   a fixed `time.dt` against the CFL (h / (c0 + U)), force
-                  (sqrt(h / |g|)) and viscous (0.125 h^2 / nu) limits
-- `support`       neighbours per kernel support on the initial lattice
-- `wall_layers`   wall thickness against the kernel support (a wall box outside the domain is a
-                  config error, refused by config.validate)
-
-`severe=True` marks a configuration that will blow up or give garbage: `taichi-sph stability`
-refuses to run those and reports the message as the reason.
+- `mach`          WCSPH: Ma = U / c0 (expected speed over sound speed); density errors ~ Ma^2.
+                  Warning above 0.1 (errors > 1%); severe at >= 1: the fluid is softer than its own flow.
+- `cfl_number`    the adaptive step's Courant number `time.cfl` on h. Warning above 0.4 (the usual
+                  0.25 is exceeded: noisy pressure); severe above 1: a signal crosses more than h per
+                  step, outside the CFL condition, where an explicit update has no stability guarantee.
+- `cfl_dt`, `force_dt`, `viscous_dt`   a fixed `time.dt` against the limits at Courant number 0.25
+                  (h / (c0 + U), sqrt(h / |g|)) and 0.125 h^2 / nu. Warning above them; severe above
+                  4x (Courant number 1 on h, as for `cfl_number`; 2x the viscous limit: the explicit
+                  diffusion update's own bound 0.25 h^2 / nu).
+- `support`       neighbours per kernel support on the initial lattice. Warning below 4 / 12 / 30 (1D /
+                  2D / 3D: the Wendland C2 kernel sum of a full lattice is then > 1.5% off in 2D);
+                  severe below half of that (2D, hdx 0.6: 4 neighbours, kernel sum 57% off: density and
+                  pressure are the particle's own weight, not the fluid's).
+- `neighbour_capacity`  an explicit `particles.max_neighbors` below the lattice count within the list
+                  radius: every list is cut from the first step (the neighbour-overflow guard stops the
+                  run): severe.
+- `wall_layers`   wall thickness (layers x dx) against the kernel support: warning below the support
+                  (particles at the wall miss part of it); severe below half the support, where the
+                  Adami wall pressure comes from a sliver of the kernel and particles pass through.
+                  (A wall box outside the domain is a config error, refused by config.validate.)
+- `unbounded`     gravity along a non-periodic axis with no wall body and no reflecting faces: the fluid
+                  falls out of the domain (the run ends `unstable`, left_domain): severe.
 """
 
 from __future__ import annotations
@@ -22,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .config import AUTO, Config
+from .errors import PreflightError
 from .geometry import lattice_neighbour_count
 from .kernels import support_factor
 
@@ -36,7 +52,8 @@ MACH_SEVERE = 1.0
 
 @dataclass(frozen=True)
 class CheckResult:
-    code: str          # short id: mach, cfl_number, cfl_dt, force_dt, viscous_dt, support, wall_layers
+    code: str          # short id: mach, cfl_number, cfl_dt, force_dt, viscous_dt, support,
+                       # neighbour_capacity, wall_layers, unbounded
     message: str
     severe: bool = False   # the run is very likely to blow up or give garbage
 
@@ -141,6 +158,32 @@ def _support(cfg: Config) -> list[CheckResult]:
                                    f"use particles.hdx >= 1.2 for at least {minimum}", severe=per_support < minimum // 2)]
 
 
+def _neighbour_capacity(cfg: Config) -> list[CheckResult]:
+    if cfg.particles.max_neighbors == AUTO:
+        return []
+    radius = support_factor(cfg.particles.kernel) * cfg.h * (1.0 + cfg.skin_fraction)
+    lattice = lattice_neighbour_count(cfg.dim, cfg.particles.dx, radius)
+    capacity = int(cfg.particles.max_neighbors)
+    if capacity >= lattice:
+        return []
+    return [CheckResult("neighbour_capacity", f"particles.max_neighbors = {capacity} is below the {lattice} neighbours "
+                                              f"every particle has on the initial lattice: each list is cut from the "
+                                              f"first step; use 'auto' or >= {int(math.ceil(2.5 * lattice))}",
+                        severe=True)]
+
+
+def _unbounded(cfg: Config) -> list[CheckResult]:
+    if not cfg.has_gravity or cfg.reflecting.enabled or any(b.type.startswith("wall") for b in cfg.bodies):
+        return []
+    g = cfg.gravity_vector
+    axis = max(range(cfg.dim), key=lambda a: abs(g[a]))
+    if cfg.periodic[axis]:
+        return []
+    return [CheckResult("unbounded", f"gravity acts along axis {axis} but no wall body and no reflecting face holds "
+                                     f"the fluid: it falls out of the domain; add a wall_box or set "
+                                     f"reflecting.enabled: true", severe=True)]
+
+
 def _walls(cfg: Config) -> list[CheckResult]:
     out: list[CheckResult] = []
     dx = cfg.particles.dx
@@ -158,9 +201,28 @@ def _walls(cfg: Config) -> list[CheckResult]:
 
 def a_priori_checks(cfg: Config) -> list[CheckResult]:
     """Everything that can be judged before the first step."""
-    return _mach(cfg) + _time_step(cfg) + _support(cfg) + _walls(cfg)
+    return (_mach(cfg) + _time_step(cfg) + _support(cfg) + _neighbour_capacity(cfg) + _walls(cfg)
+            + _unbounded(cfg))
 
 
 def severe_checks(cfg: Config) -> list[CheckResult]:
     """The checks that make a run pointless (stability's reason to refuse it)."""
     return [c for c in a_priori_checks(cfg) if c.severe]
+
+
+def refusals(cfg: Config, *, render: bool = False, severe: bool = True) -> list[str]:
+    """Why a run of `cfg` would be refused: not enough memory (memory.py), then every severe check."""
+    from .memory import preflight
+    _, memory_line = preflight(cfg, render=render)
+    lines = [memory_line] if memory_line else []
+    return lines + ([c.message for c in severe_checks(cfg)] if severe else [])
+
+
+def preflight(cfg: Config, *, force: bool = False, render: bool = False, severe: bool = True) -> None:
+    """Refuse (PreflightError: one line, exit 2) a run that does not fit in memory or (`severe`) cannot
+    give a meaningful result, unless `force`."""
+    if force:
+        return
+    lines = refusals(cfg, render=render, severe=severe)
+    if lines:
+        raise PreflightError(f"{cfg.name}: refused: " + "; ".join(lines) + " (--force runs anyway)")

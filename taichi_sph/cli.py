@@ -1,4 +1,4 @@
-"""`taichi-sph` command line: run | view | check | list | compare | sweep | stability | bench | render | config-doc.
+"""`taichi-sph` command line: run | resume | view | check | list | compare | sweep | stability | bench | render | config-doc.
 
 User errors (bad config, bad arguments, missing driver) print one line and exit 2; an unstable
 run exits 3; Ctrl-C exits 130 with a checkpoint. Tracebacks are for bugs only.
@@ -11,7 +11,7 @@ import json
 import sys
 from pathlib import Path
 
-from .errors import EXIT_INTERRUPTED, EXIT_USAGE, SPHError, UsageError
+from .errors import EXIT_INTERRUPTED, EXIT_USAGE, PreflightError, SPHError, UsageError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -39,7 +39,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--t-end", type=float, help="simulated end time [s]")
     p.add_argument("--no-render", action="store_true", help="skip frames and video (the renderer is not even imported)")
     p.add_argument("--explain", action="store_true", help="print the compiled-in features and the a-priori checks, then exit")
+    p.add_argument("--force", action="store_true",
+                   help="run even when the memory pre-flight or a severe a-priori check refuses the set-up")
+    p.add_argument("--overwrite", action="store_true", help="replace the output of a previous run in the run folder")
     _add_common(p)
+
+    p = sub.add_parser("resume", help="continue an interrupted or killed run from its last checkpoint")
+    p.add_argument("run_dir", help="run folder written by `taichi-sph run`")
+    p.add_argument("--t-end", type=float, help="new simulated end time [s] (to extend a finished run)")
+    p.add_argument("--no-render", action="store_true", help="no frames from here on")
+    p.add_argument("--quiet", action="store_true", help="no progress bar or log lines")
+    p.add_argument("--force", action="store_true", help="resume even when the memory pre-flight refuses")
 
     p = sub.add_parser("view", help="run a scene live in a window, with controls (needs a display)")
     p.add_argument("config", help="YAML config file (see `taichi-sph list`)")
@@ -86,6 +96,8 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--solvers", default="wcsph,isph")
         if name in ("compare", "stability"):
             p.add_argument("--no-render", action="store_true")
+        if name in ("compare", "sweep"):
+            p.add_argument("--force", action="store_true", help="run even when the memory pre-flight refuses")
         _add_common(p)
     return parser
 
@@ -105,8 +117,9 @@ def _load(args) -> "object":
 
 
 def cmd_run(args) -> int:
-    from .checks import a_priori_checks
+    from .checks import a_priori_checks, preflight
     cfg = _load(args)
+    preflight(cfg, force=args.force, render=not args.no_render and cfg.render.enabled)
     if args.explain:
         from .features import Features
         from .geometry import build_particles
@@ -117,11 +130,39 @@ def cmd_run(args) -> int:
         for c in a_priori_checks(cfg):
             print(f"warning: {c.message}")
         return 0
+    from .output import RunFolder
     from .simulation import Simulation
     out = Path(args.out) if args.out else Path("renders") / f"{cfg.name}-{cfg.solver}"
+    previous = RunFolder(out).previous_run()
+    if previous and not args.overwrite:
+        hint = f"`taichi-sph resume {out}` continues it, " if "unfinished" in previous else ""
+        raise UsageError(f"{out} already holds {previous}: {hint}--overwrite replaces it, --out DIR writes elsewhere")
     result = Simulation(cfg, out, render=not args.no_render, quiet=args.quiet).run()
+    return _report(result, out, args.quiet)
+
+
+def cmd_resume(args) -> int:
+    """Continue a run folder's run from its checkpoint to its t_end (or --t-end)."""
+    from .checkpoint import load_resume
+    from .memory import preflight as memory_preflight
+    from .simulation import Simulation
+    if args.t_end is not None and not args.t_end > 0:
+        raise UsageError(f"--t-end must be > 0, got {args.t_end}")
+    out = Path(args.run_dir)
+    resume = load_resume(out, args.t_end)
+    render = resume.meta["render"] and not args.no_render
+    if not args.force:  # severe checks were judged (or forced) when the run started
+        _, line = memory_preflight(resume.cfg, render=render)
+        if line:
+            raise PreflightError(f"{resume.cfg.name}: refused: {line} (--force runs anyway)")
+    result = Simulation(resume.cfg, out, render=render, quiet=args.quiet).run(resume=resume)
+    return _report(result, out, args.quiet)
+
+
+def _report(result, out: Path, quiet: bool) -> int:
+    """Print the run's outcome (unless quiet); return its exit code."""
     s = result.summary
-    if not args.quiet:
+    if not quiet:
         line = (f"{s['status']}: {s['steps']} steps to t = {s['t_end']:.4g} s in {s['wall_time_s']:.1f} s "
                 f"(+{s['compile_time_s']:.1f} s compile), {s['particle_steps_per_s'] / 1e6:.2f} M particle-steps/s")
         print(line)
@@ -133,18 +174,25 @@ def cmd_run(args) -> int:
             print(f"unstable: {inst['criterion']} at step {inst['step']}, t = {inst['t']:.4g} s, particle {inst['particle']}: "
                   f"{inst['detail']}; last good state kept in {out}/snapshots")
         if s["status"] == "interrupted":
-            print(f"interrupted at t = {s['t_end']:.4g} s: state kept as a snapshot in {out}/snapshots")
+            print(f"interrupted at t = {s['t_end']:.4g} s: state kept as a snapshot in {out}/snapshots and a "
+                  f"checkpoint; `taichi-sph resume {out}` continues")
         print(f"output: {out}")
     return result.exit_code
 
 
 def cmd_check(args) -> int:
-    from .checks import a_priori_checks
+    """Validate, print the memory estimate and the warnings; a set-up `run` would refuse exits 2 with its line."""
+    from .checks import a_priori_checks, preflight
+    from .memory import GIB, host_memory_available, estimate
     cfg = _load(args)
     checks = a_priori_checks(cfg)
     print(f"{args.config}: valid ({cfg.solver}, dim {cfg.dim}, dx {cfg.particles.dx:g}, c0 {cfg.sound_speed:.4g} m/s)")
+    print(f"memory: {estimate(cfg, render=cfg.render.enabled).describe()} "
+          f"({host_memory_available() / GIB:.1f} GiB host memory available)")
     for c in checks:
-        print(f"warning: {c.message}")
+        if not c.severe:
+            print(f"warning: {c.message}")
+    preflight(cfg, render=cfg.render.enabled)
     return 0
 
 
@@ -191,7 +239,7 @@ def _lazy(module: str, name: str):
 
 
 COMMANDS = {
-    "run": cmd_run, "check": cmd_check, "list": cmd_list, "config-doc": cmd_config_doc, "render": cmd_render,
+    "run": cmd_run, "resume": cmd_resume, "check": cmd_check, "list": cmd_list, "config-doc": cmd_config_doc, "render": cmd_render,
     "bench": _lazy("bench", "cmd_bench"), "compare": _lazy("compare", "cmd_compare"),
     "sweep": _lazy("sweep", "cmd_sweep"), "stability": _lazy("stability", "cmd_stability"),
     "view": _lazy("view", "cmd_view"),

@@ -326,6 +326,12 @@ def cmd_compare(args) -> int:
     from .cli import _load
 
     cfg = _load(args)
+    from dataclasses import replace
+
+    from .checks import preflight
+    for solver in ("wcsph", "isph"):  # one after the other: each must fit (memory only: compare shows both)
+        preflight(replace(cfg, solver=solver), force=args.force, render=not args.no_render and cfg.render.enabled,
+                  severe=False)
     out = Path(args.out) if args.out else Path("renders") / f"{cfg.name}-compare"
     quiet = getattr(args, "quiet", False)
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr))

@@ -185,6 +185,10 @@ class Guards:
 class Output:
     every: float = opt(0.02, "simulated time between output rows (timeseries, probes, metrics)", unit="s", positive=True)
     snapshot_every: float | None = opt(None, "simulated time between NPZ/VTU snapshots; None = at the end only", unit="s", positive=True)
+    checkpoint_every: float | str | None = opt(AUTO, "simulated time between checkpoints (full solver state, written "
+                                                     "atomically; `taichi-sph resume` continues from the last one); "
+                                                     "'auto' = t_end / 10 (a killed run loses at most a tenth); None = "
+                                                     "only at the end or on Ctrl-C", unit="s")
 
 
 @dataclass(frozen=True)
@@ -305,6 +309,14 @@ class Config:
         if self.solver == "isph" and self.isph.artificial_viscosity_alpha is not None:
             return self.isph.artificial_viscosity_alpha, av.beta
         return av.alpha, av.beta
+
+    @property
+    def checkpoint_interval(self) -> float | None:
+        """Simulated time between checkpoints: `output.checkpoint_every`, 'auto' = t_end / 10, None = off."""
+        every = self.output.checkpoint_every
+        if every == AUTO:
+            return self.time.t_end / 10.0
+        return None if every is None else float(every)
 
     @property
     def shifting_enabled(self) -> bool:
@@ -631,6 +643,9 @@ def validate(cfg: Config, source: str) -> None:
         raise ConfigError(f"must be > 0 or 'auto', got {cfg.fluid.c0!r}", source=source, key="fluid.c0")
     if cfg.time.dt != AUTO and (isinstance(cfg.time.dt, str) or cfg.time.dt <= 0):
         raise ConfigError(f"must be > 0 or 'auto', got {cfg.time.dt!r}", source=source, key="time.dt")
+    ce = cfg.output.checkpoint_every
+    if ce is not None and ce != AUTO and (isinstance(ce, str) or ce <= 0):
+        raise ConfigError(f"must be > 0, 'auto' or null, got {ce!r}", source=source, key="output.checkpoint_every")
     sk = cfg.particles.skin
     if sk != AUTO and (isinstance(sk, str) or not 0.0 <= sk <= 1.0):
         raise ConfigError(f"must be 'auto' or a fraction in [0, 1], got {sk!r}", source=source, key="particles.skin")

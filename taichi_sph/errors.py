@@ -35,3 +35,8 @@ class UsageError(SPHError):
 
 class RenderUnavailable(SPHError):
     """Offscreen rendering cannot start (no Vulkan driver)."""
+
+
+class PreflightError(SPHError):
+    """A run refused before anything is allocated: not enough memory, or a set-up that cannot give a
+    meaningful result (a severe a-priori check). `--force` runs it anyway."""

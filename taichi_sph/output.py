@@ -33,7 +33,8 @@ from .errors import UsageError
 SNAPSHOT_PREFIX = "snap_"
 PVD_NAME = "snapshots.pvd"
 # files of a previous run that must not survive into a new one (config.yaml is rewritten anyway)
-_STALE_FILES = ("config.yaml", "summary.json", "summary.json.tmp", "timeseries.csv")
+_STALE_FILES = ("config.yaml", "summary.json", "summary.json.tmp", "timeseries.csv", "checkpoint.npz",
+                "checkpoint.npz.tmp")
 _STALE_DIRS = ("snapshots", "frames")
 _STALE_GLOBS = ("video.*",)
 
@@ -86,14 +87,21 @@ class TimeseriesWriter:
     """timeseries.csv: a header line, then one line per `append`, flushed at once so a crashed or
     interrupted run still leaves every row written so far."""
 
-    def __init__(self, path: Path, columns: list[str]) -> None:
+    def __init__(self, path: Path, columns: list[str], append: bool = False) -> None:
         if len(set(columns)) != len(columns):
             raise ValueError(f"duplicate timeseries columns: {columns}")
         self.path = Path(path)
         self.columns = list(columns)
-        self._file = open(self.path, "w", newline="")
-        self._file.write(",".join(self.columns) + "\n")
+        self._file = open(self.path, "a" if append else "w", newline="")
+        if not append:
+            self._file.write(",".join(self.columns) + "\n")
+            self._file.flush()
+
+    def sync(self) -> int:
+        """Force the rows written so far to disk; returns the file size in bytes."""
         self._file.flush()
+        os.fsync(self._file.fileno())
+        return self._file.tell()
 
     def append(self, row: dict[str, Any]) -> None:
         """Write one row; a column missing from `row` is left empty, a key not in the header is an error."""
@@ -225,8 +233,51 @@ class RunFolder:
     def read_summary(self) -> dict:
         return json.loads((self.path / "summary.json").read_text())
 
-    def timeseries(self, columns: list[str]) -> TimeseriesWriter:
-        return TimeseriesWriter(self.path / "timeseries.csv", columns)
+    def timeseries(self, columns: list[str], append: bool = False) -> TimeseriesWriter:
+        return TimeseriesWriter(self.path / "timeseries.csv", columns, append=append)
+
+    def previous_run(self) -> str | None:
+        """A one-line description of the run this folder already holds (None when it holds none)."""
+        path = self.path / "summary.json"
+        if not path.is_file():
+            return None
+        try:
+            summary = json.loads(path.read_text())
+        except (OSError, ValueError):
+            return "an unreadable summary.json"
+        status = summary.get("status", "?")
+        t = summary.get("t" if status == "running" else "t_end")
+        at = f" at t = {t:.4g} s" if isinstance(t, (int, float)) else ""
+        what = {"running": "an unfinished run (status running: killed, or still going)"}.get(status, f"a finished run "
+                                                                                                   f"(status {status})")
+        return what + at
+
+    def cut_back(self, timeseries_bytes: int, frames: int, snapshot_steps: list[int]) -> None:
+        """Remove what a run wrote after its checkpoint: timeseries rows past `timeseries_bytes`, frames
+        numbered `frames` and up, snapshots whose step is not in `snapshot_steps` (and their .pvd entries)."""
+        ts = self.path / "timeseries.csv"
+        if ts.is_file():
+            with open(ts, "r+b") as f:
+                f.truncate(timeseries_bytes)
+        if (self.path / "frames").is_dir():
+            for p in (self.path / "frames").glob("frame_*.png"):
+                if int(p.stem.split("_")[1]) >= frames:
+                    p.unlink()
+        keep = {int(s) for s in snapshot_steps}
+        d = self.path / "snapshots"
+        entries: dict[int, tuple[float, str]] = {}
+        if d.is_dir():
+            if (d / PVD_NAME).is_file():
+                for t_old, name in read_pvd(d / PVD_NAME):
+                    entries[int(Path(name).stem[len(SNAPSHOT_PREFIX):])] = (t_old, name)
+            for p in list(d.glob(f"{SNAPSHOT_PREFIX}*.npz")) + list(d.glob(f"{SNAPSHOT_PREFIX}*.vtu")):
+                if int(p.stem[len(SNAPSHOT_PREFIX):]) not in keep:
+                    p.unlink()
+            entries = {k: v for k, v in entries.items() if k in keep}
+            _write_pvd(d / PVD_NAME, entries)
+        for p in self.path.glob("video.*"):
+            p.unlink()
+        self._pvd_entries = entries
 
     def snapshot(self, step: int, t: float, fields: dict[str, np.ndarray], dim: int) -> Path:
         """Write snapshots/snap_{step:07d}.npz (every field, plus `t` and `step`) and the matching

@@ -6,10 +6,12 @@ stability, bench) goes through.
 
 from __future__ import annotations
 
+import os
+import pickle
 import signal
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -31,6 +33,29 @@ def make_solver(cfg: Config, arrays):
         return WCSPHSolver(cfg, arrays)
     from .solvers.isph import ISPHSolver
     return ISPHSolver(cfg, arrays)
+
+
+@dataclass
+class LoopState:
+    """The run loop's bookkeeping, saved in every checkpoint beside the solver state."""
+
+    next_out: float = 0.0
+    next_frame: float = 0.0
+    next_snap: float | None = None
+    next_checkpoint: float | None = None
+    dt: float = 0.0                       # the last step's dt (the timeseries' `dt` column)
+    dts: list = field(default_factory=list)
+    step_times: list = field(default_factory=list)
+    max_rho_err: float = 0.0
+    frames: int = 0                       # frames written
+    render_s: float = 0.0
+    wall_s: float = 0.0                   # stepping wall time of the segments before a resume
+    compile_s: float = 0.0
+    snapshot_steps: list = field(default_factory=list)   # steps of the periodic snapshots written
+    timeseries_bytes: int = 0             # timeseries.csv size at the checkpoint
+    last_checkpoint_t: float | None = None
+    resumed_at: list = field(default_factory=list)
+    observed_step: int = -1               # the step whose outputs were written last
 
 
 @dataclass
@@ -127,44 +152,82 @@ class Simulation:
             idx = int(np.nanargmax(np.linalg.norm(np.nan_to_num(v), axis=1)))
         return int(state["id"][f][idx])
 
-    # -- the loop -----------------------------------------------------------------------------------
-    def run(self) -> RunResult:
+    # -- checkpoints and the run folder's status ---------------------------------------------
+    def _write_running(self, folder, solver, loop: "LoopState") -> None:
+        """summary.json while the run goes on: status running, where it is, the last checkpoint."""
         cfg = self.cfg
-        checks = a_priori_checks(cfg)
-        for c in checks:
-            self.warnings.append(c.message)
-            self.log(f"warning: {c.message}")
+        folder.write_summary({"scene": cfg.name, "solver": cfg.solver, "dim": cfg.dim, "status": "running",
+                              "t": solver.t, "steps": solver.step_count, "t_end": cfg.time.t_end,
+                              "last_checkpoint_t": loop.last_checkpoint_t, "resumed_at": loop.resumed_at,
+                              "pid": os.getpid(), "warnings": self.warnings})
+
+    def _checkpoint(self, folder, solver, loop: "LoopState", series) -> None:
+        """Write checkpoint.npz (solver state + loop bookkeeping + metrics) atomically."""
+        from .checkpoint import CHECKPOINT_NAME, write_checkpoint
+        loop.timeseries_bytes = series.sync() if series else 0
+        loop.last_checkpoint_t = solver.t
+        fields, arrays, plain = solver.state_items()
+        meta = {"t": solver.t, "step": solver.step_count, "solver_plain": plain, "loop": asdict(loop),
+                "metrics": pickle.dumps(self.metrics), "warnings": list(self.warnings), "render": self.render_enabled}
+        write_checkpoint(folder.path / CHECKPOINT_NAME, fields, arrays, meta)
+
+    def _start(self, resume):
+        """Solver, metrics, run folder and loop state: fresh, or restored from a checkpoint."""
+        cfg = self.cfg
+        if resume is None:
+            for c in a_priori_checks(cfg):
+                self.warnings.append(c.message)
+                self.log(f"warning: {c.message}")
+        else:
+            self.warnings = list(resume.meta["warnings"])
         init_taichi(cfg.arch, cfg.precision)
         arrays = build_particles(cfg)
         t_setup = time.perf_counter()
         solver = make_solver(cfg, arrays)
-        self.metrics = make_metrics(cfg)
+        self.metrics = make_metrics(cfg) if resume is None else pickle.loads(resume.meta["metrics"])
+        loop = LoopState(next_snap=cfg.output.snapshot_every if cfg.output.snapshot_every else None)
         folder = None
         if self.out_dir is not None:
-            folder = RunFolder(self.out_dir).prepare()
+            folder = RunFolder(self.out_dir)
+            if resume is None:
+                folder.prepare()
+            else:
+                loop = LoopState(**resume.meta["loop"])
+                folder.cut_back(loop.timeseries_bytes, loop.frames, loop.snapshot_steps)
             folder.write_config(to_dict(cfg))
         self.log(f"{cfg.name}: {solver.name}, dim {cfg.dim}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles, "
                  f"dx {cfg.particles.dx:g}, h {cfg.h:.4g}, c0 {solver.c0:.4g} m/s, arch {current_arch_name()}")
         solver.prepare()
-        prepare_s = time.perf_counter() - t_setup
+        if resume is not None:
+            solver.restore_state(resume.arrays, resume.meta["solver_plain"])
+            loop.resumed_at.append(solver.t)
+            self.log(f"resumed from the checkpoint at t = {solver.t:.6g} s, step {solver.step_count}")
+        every = cfg.checkpoint_interval
+        if every is not None and folder is not None and resume is None:
+            loop.next_checkpoint = every
+        loop.compile_s += time.perf_counter() - t_setup
+        return solver, folder, loop
+
+    # -- the loop -----------------------------------------------------------------------------------
+    def run(self, resume=None) -> RunResult:
+        """Run the scene to t_end (or continue a checkpointed run: `resume` from checkpoint.load_resume)."""
+        cfg = self.cfg
+        solver, folder, loop = self._start(resume)
 
         columns = ["t", "step", "dt", "kinetic_energy", "max_speed", "max_density_error"]
         columns += [p.name for p in cfg.probes] + [c for m in self.metrics for c in m.columns()]
         columns += list(solver.extra_timeseries().keys())
-        series = folder.timeseries(columns) if folder else None
+        series = folder.timeseries(columns, append=resume is not None) if folder else None
         renderer = self._start_renderer(solver) if self.render_enabled else None
-        render_s = 0.0
-        frames: list[Path] = []
+        frames: list[Path] = [folder.path / "frames" / f"frame_{i:05d}.png" for i in range(loop.frames)] if folder else []
+        if folder:
+            self._write_running(folder, solver, loop)
 
         t_end = cfg.time.t_end
-        next_out = 0.0
-        next_frame = 0.0
-        next_snap = cfg.output.snapshot_every if cfg.output.snapshot_every else None
-        dts: list[float] = []
+        every = cfg.checkpoint_interval
         step_times: list[float] = []
         status, instability = "ok", None
         last_good: dict | None = None
-        max_rho_err = 0.0
         progress = Progress(t_end, solver.n, enabled=not self.quiet)
         old_handler = signal.getsignal(signal.SIGINT)
 
@@ -176,39 +239,49 @@ class Simulation:
         except ValueError:  # not the main thread
             pass
         wall0 = time.perf_counter()
-        dt = 0.0
+        render_s0 = loop.render_s
         stats = solver.read_stats()
         try:
             while True:
-                at_output = solver.t >= next_out - 1e-12
-                at_frame = renderer is not None and solver.t >= next_frame - 1e-12
-                at_snap = next_snap is not None and solver.t >= next_snap - 1e-12
+                # once per step: a resumed run has written this step's outputs before its checkpoint
+                fresh = solver.step_count != loop.observed_step
+                loop.observed_step = solver.step_count
+                at_output = fresh and solver.t >= loop.next_out - 1e-12
+                at_frame = fresh and renderer is not None and solver.t >= loop.next_frame - 1e-12
+                at_snap = fresh and loop.next_snap is not None and solver.t >= loop.next_snap - 1e-12
                 if at_output or at_frame or at_snap:
                     state = solver.host_state()
                     if at_output:
-                        row = self._observe(solver, state, dt, stats)
-                        max_rho_err = max(max_rho_err, row["max_density_error"])
+                        row = self._observe(solver, state, loop.dt, stats)
+                        loop.max_rho_err = max(loop.max_rho_err, row["max_density_error"])
                         if series:
                             series.append(row)
-                        next_out += cfg.output.every
+                        loop.next_out += cfg.output.every
                     if at_frame:
                         r0 = time.perf_counter()
-                        path = folder.frames_dir / f"frame_{len(frames):05d}.png"
+                        path = folder.frames_dir / f"frame_{loop.frames:05d}.png"
                         renderer.write(path, state["x"], state["kind"], self._render_values(state), solver.t)
                         frames.append(path)
-                        render_s += time.perf_counter() - r0
-                        next_frame += cfg.render.every
+                        loop.frames += 1
+                        loop.render_s += time.perf_counter() - r0
+                        loop.next_frame += cfg.render.every
                     if at_snap and folder and self.snapshots:
                         folder.snapshot(solver.step_count, solver.t, self._snapshot_fields(state), cfg.dim)
-                        next_snap += cfg.output.snapshot_every
+                        loop.snapshot_steps.append(solver.step_count)
+                        loop.next_snap += cfg.output.snapshot_every
                     last_good = state
                 if solver.t >= t_end - 1e-12 or self._interrupted:
                     break
+                if loop.next_checkpoint is not None and solver.t >= loop.next_checkpoint - 1e-12:
+                    while loop.next_checkpoint <= solver.t + 1e-12:
+                        loop.next_checkpoint += every
+                    self._checkpoint(folder, solver, loop, series)
+                    self._write_running(folder, solver, loop)
                 solver.dt_cap = t_end - solver.t
                 s0 = time.perf_counter()
-                dt = solver.step()
+                loop.dt = solver.step()
                 step_times.append(time.perf_counter() - s0)
-                dts.append(dt)
+                loop.dts.append(loop.dt)
                 if solver.step_count % cfg.guards.check_every == 0 or solver.t >= t_end - 1e-12:
                     stats = solver.read_stats()
                     bad = self._guard(solver, stats)
@@ -230,14 +303,20 @@ class Simulation:
                 pass
         if self._interrupted and status == "ok":
             status = "interrupted"
-        wall = time.perf_counter() - wall0 - render_s
+        wall = loop.wall_s + time.perf_counter() - wall0 - (loop.render_s - render_s0)
+        if folder and status != "unstable":
+            # the end (to extend with --t-end) or the interruption: resume continues from here
+            loop.wall_s = wall
+            self._checkpoint(folder, solver, loop, series)
         final = solver.host_state() if status != "unstable" else (last_good or solver.host_state())
 
         # compile time: set-up + first step beyond a typical step
+        loop.step_times.extend(step_times)
         typical = float(np.median(step_times[1:])) if len(step_times) > 2 else 0.0
-        compile_s = prepare_s + (step_times[0] - typical if step_times else 0.0)
-        stepping_s = max(sum(step_times[1:]) if len(step_times) > 1 else sum(step_times), 1e-12)
-        nsteps = max(len(step_times) - 1, 1)
+        compile_s = loop.compile_s + (step_times[0] - typical if step_times else 0.0)
+        stepping_s = max(sum(loop.step_times[1:]) if len(loop.step_times) > 1 else sum(loop.step_times), 1e-12)
+        nsteps = max(len(loop.step_times) - 1, 1)
+        dts = loop.dts
         errors: dict = {}
         if status == "ok":
             for m in self.metrics:
@@ -252,10 +331,10 @@ class Simulation:
             "status": status, "steps": solver.step_count, "t_end": solver.t,
             "dt_min": float(min(dts)) if dts else None, "dt_mean": float(np.mean(dts)) if dts else None,
             "dt_max": float(max(dts)) if dts else None,
-            "wall_time_s": wall, "compile_time_s": compile_s, "render_time_s": render_s,
+            "wall_time_s": wall, "compile_time_s": compile_s, "render_time_s": loop.render_s,
             "particle_steps_per_s": solver.n * nsteps / stepping_s,
             "fluid_particle_steps_per_s": solver.particles.n_fluid * nsteps / stepping_s,
-            "max_density_error": max_rho_err,
+            "max_density_error": loop.max_rho_err,
             "errors": errors,
             "conservation": {
                 "fluid_mass": float(final["mass"][f].sum()),
@@ -267,6 +346,7 @@ class Simulation:
             "features": solver.features.compiled_in(),
             "arch": current_arch_name(), "precision": cfg.precision,
             "neighbours_max": solver.nsearch.max_count(), "neighbour_capacity": solver.max_neighbors,
+            "last_checkpoint_t": loop.last_checkpoint_t, "resumed_at": loop.resumed_at,
             "warnings": self.warnings,
         }
         extra = solver.extra_summary()
@@ -281,7 +361,7 @@ class Simulation:
                 from .render import assemble_video
                 r0 = time.perf_counter()
                 assemble_video(frames, folder.path / f"video.{cfg.render.video}", cfg.render.fps)
-                summary["render_time_s"] = render_s + time.perf_counter() - r0
+                summary["render_time_s"] = loop.render_s + time.perf_counter() - r0
             summary["frames"] = len(frames)
             if series:
                 series.close()

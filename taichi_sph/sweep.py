@@ -161,6 +161,12 @@ def cmd_sweep(args) -> int:
     cfg = _load(args)
     dxs = parse_dx_list(args.dx, cfg.particles.dx)
     solvers = parse_solvers(args.solvers)
+    from dataclasses import replace
+
+    from .checks import preflight
+    from .memory import with_dx
+    for solver in solvers:  # the finest spacing is the largest run (memory only: a sweep shows convergence)
+        preflight(replace(with_dx(cfg, min(dxs)), solver=solver), force=args.force, severe=False)
     out = Path(args.out) if args.out else Path("renders") / f"{cfg.name}-sweep"
     quiet = getattr(args, "quiet", False)
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr))
