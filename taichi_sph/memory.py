@@ -136,7 +136,7 @@ def neighbour_capacity(cfg: Config) -> int:
     return max(8, int(math.ceil(2.5 * lattice_neighbour_count(cfg.dim, cfg.particles.dx, radius))))
 
 
-def device_bytes_per_particle(cfg: Config, n_wall: int, render: bool) -> float:
+def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bool) -> float:
     """Bytes of Taichi fields per particle (see the module doc for the list)."""
     from .features import Features
     f = Features.from_config(cfg, n_wall)
@@ -159,7 +159,7 @@ def device_bytes_per_particle(cfg: Config, n_wall: int, render: bool) -> float:
         kinematic = f.walls and cfg.isph.wall_clearance is not None
         floats += 2 * ((d + 1) if kinematic else 0) + d     # wall planes (+ scratch), acc scratch
         floats += 1 + d                                     # rho_summation, grad_p_estimate
-        floats += 4 + nb + (3 if cfg.isph.ppe.solver == "cg" else 0)
+        floats += 4 + nb + {"cg": 3, "mgcg": 4}.get(cfg.isph.ppe.solver_for(n_fluid), 0)
         ints += 1
     extra = 24.0 if render else 0.0
     return floats * fp + ints * 4 + extra
@@ -175,6 +175,15 @@ def cell_count(cfg: Config) -> int:
     return total
 
 
+def multigrid_bytes(cfg: Config, n_fluid: int) -> float:
+    """mgcg's cell levels: a 3^dim stencil and five vectors per cell of the neighbour grid, and the coarser
+    levels (each 2^dim times smaller)."""
+    if cfg.solver != "isph" or cfg.isph.ppe.solver_for(n_fluid) != "mgcg":
+        return 0.0
+    fp = 8 if cfg.precision == "f64" else 4
+    return (3 ** cfg.dim + 5) * fp * cell_count(cfg) * 2 ** cfg.dim / (2 ** cfg.dim - 1)
+
+
 def on_device(arch: str) -> bool:
     return arch in ("cuda", "vulkan", "gpu", "auto") and gpu_memory_available() is not None
 
@@ -183,7 +192,7 @@ def estimate(cfg: Config, *, render: bool = False, device: bool | None = None) -
     """Bytes the run will need on the host and (on a GPU backend) on the device."""
     fluid, wall, largest = particle_counts(cfg)
     n = fluid + wall
-    dev = device_bytes_per_particle(cfg, wall, render) * n + 8.0 * cell_count(cfg)
+    dev = device_bytes_per_particle(cfg, fluid, wall, render) * n + 8.0 * cell_count(cfg) + multigrid_bytes(cfg, fluid)
     kept = (2 * cfg.dim + 3) * 8 + 4                  # ParticleArrays (float64) kept by the run
     build = largest * (2 * cfg.dim * 8 + 1)           # meshgrid + stacked points of the largest body
     # output copies, and a checkpoint's largest single field copy (the neighbour list) beside them

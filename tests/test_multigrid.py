@@ -18,7 +18,7 @@ from taichi_sph.config import PPE, bundled_configs_dir, load_config
 from taichi_sph.geometry import build_particles
 from taichi_sph.physics.multigrid import COARSEST_CELLS, grid_levels
 from taichi_sph.physics.ppe import BB, N_DIRICHLET, N_UNKNOWN, RZ_NEW, SUM_B, UNKNOWN
-from taichi_sph.solvers.isph import ISPHSolver, ppe_solver_for
+from taichi_sph.solvers.isph import ISPHSolver
 
 from test_isph import apply_matrix, assembled, manufactured, tank_cfg
 
@@ -215,6 +215,6 @@ def test_mgcg_hydrostatic_tank_in_f64(tmp_path):
 
 
 def test_auto_takes_mgcg_from_the_threshold():
-    assert ppe_solver_for(PPE(solver="auto", mgcg_from=5000), 4999) == "cg"
-    assert ppe_solver_for(PPE(solver="auto", mgcg_from=5000), 5000) == "mgcg"
-    assert ppe_solver_for(PPE(solver="jacobi", mgcg_from=0), 10 ** 6) == "jacobi"
+    assert PPE(solver="auto", mgcg_from=5000).solver_for(4999) == "cg"
+    assert PPE(solver="auto", mgcg_from=5000).solver_for(5000) == "mgcg"
+    assert PPE(solver="jacobi", mgcg_from=0).solver_for(10 ** 6) == "jacobi"

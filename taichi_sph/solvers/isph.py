@@ -52,7 +52,7 @@ import time
 import numpy as np
 import taichi as ti
 
-from ..config import AUTO, PPE, Config
+from ..config import Config
 from ..geometry import FLUID, WALL, ParticleArrays, lattice_distances, lattice_kernel_sum, wall_face_planes
 from ..physics.momentum import monaghan_viscosity, morris_laminar_viscosity
 from ..particles import np_float
@@ -91,13 +91,6 @@ def lattice_gradient_sum(cfg: Config, dw_dr, eta2: float = 0.0) -> float:
     return float(np.sum(-r * dw_dr(r) * r * r / (r * r + eta2)) * cfg.particles.dx ** cfg.dim / cfg.dim)
 
 
-def ppe_solver_for(ppe: PPE, n_fluid: int) -> str:
-    """`isph.ppe.solver`, with 'auto' resolved by the scene size: mgcg from `mgcg_from` fluid particles."""
-    if ppe.solver != AUTO:
-        return ppe.solver
-    return "mgcg" if n_fluid >= ppe.mgcg_from else "cg"
-
-
 @ti.data_oriented
 class ISPHSolver(SolverBase):
     """Projection ISPH: Shao & Lo Laplacian, matrix-free Jacobi / PCG, free-surface Dirichlet, Neumann walls."""
@@ -133,7 +126,7 @@ class ISPHSolver(SolverBase):
         P.make_persistent(P.acc)  # the free-surface pressure uses the last acceleration
         self.rho_summation = P.add_scalar()    # rho_a before any floor: the density-invariance source
         self.grad_p_estimate = P.add_vector()  # rho0 (g - a) of the last step: grad p near the surface
-        self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ppe_solver_for(ic.ppe, arrays.n_fluid),
+        self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
                                  ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid)
         self.shifting = ParticleShifting(self, cfg.shifting.coefficient) if self.features.shifting else None
         self.iterations: list[int] = []
