@@ -386,31 +386,42 @@ class CellMultigrid:
         """From b_1 and x_1 (set by restrict_particles) to y_1: down, coarsest solve, up."""
         last = len(self.levels) - 1
         for l in range(last):
-            for _ in range(self.cell_sweeps - 1):
-                self.jacobi_sweep(l, self.x, serial or self.levels[l].serial)
+            self.smooth_level(l, self.x, serial or self.levels[l].serial)
             self.restrict_level(l, serial or self.levels[l + 1].serial)
         self.coarsest_solve(last)
         for l in range(last - 1, -1, -1):
             self.prolong_level(l, serial or self.levels[l].serial)
-            for _ in range(self.cell_sweeps - 1):
-                self.jacobi_sweep(l, self.y, serial or self.levels[l].serial)
+            self.smooth_level(l, self.y, serial or self.levels[l].serial)
+
+    def smooth_level(self, l: int, v, serial: bool) -> None:
+        """The cell_sweeps - 1 sweeps after the first, alternating between v and the scratch field."""
+        src, dst = v, self.swept
+        for _ in range(self.cell_sweeps - 1):
+            self.jacobi_sweep(l, src, dst, serial)
+            src, dst = dst, src
+        if src is not v:
+            self.copy_level(l, src, v, serial)
 
     @ti.kernel
-    def jacobi_sweep(self, l: ti.i32, v: ti.template(), serial: ti.template()):
-        """v <- v + omega D_l^-1 (b_l - A_l v) on level l: the cell levels' second and later smoothing sweeps
-        (the same number before and after the coarse correction, so the V-cycle stays symmetric)."""
+    def jacobi_sweep(self, l: ti.i32, src: ti.template(), dst: ti.template(), serial: ti.template()):
+        """dst = src + omega D_l^-1 (b_l - A_l src) on level l's active box: the second and later smoothing
+        sweeps (the same number before and after the coarse correction, so the V-cycle stays symmetric)."""
         base = self.lv_offset[l]
         ti.loop_config(serialize=serial)
         for k in range(self.box_count[l]):
             i, c = self.box_cell(l, k)
             swept = 0.0
             if self.dinv[base + c] > 0.0:
-                swept = v[base + c] + self.omega * self.dinv[base + c] * (self.b[base + c] - self.apply_level(l, v, c, i))
-            self.swept[base + c] = swept
+                swept = src[base + c] + self.omega * self.dinv[base + c] * (self.b[base + c] - self.apply_level(l, src, c, i))
+            dst[base + c] = swept
+
+    @ti.kernel
+    def copy_level(self, l: ti.i32, src: ti.template(), dst: ti.template(), serial: ti.template()):
+        base = self.lv_offset[l]
         ti.loop_config(serialize=serial)
         for k in range(self.box_count[l]):
             _, c = self.box_cell(l, k)
-            v[base + c] = self.swept[base + c]
+            dst[base + c] = src[base + c]
 
     @ti.kernel
     def restrict_level(self, l: ti.i32, serial: ti.template()):
