@@ -131,6 +131,8 @@ class CellMultigrid:
         self.levels = grid_levels(ns.n_cells, ns.periodic)
         assert self.levels[0].strides == ns._strides and self.levels[0].count == ns.total_cells
         self.top_count = self.levels[0].count
+        # the first level small enough for one thread (the coarsest at the latest)
+        self.first_small = next(l for l, lv in enumerate(self.levels) if lv.serial or l == len(self.levels) - 1)
         n_levels = len(self.levels)
         self.lv_n = ti.Vector.field(self.dim, ti.i32, n_levels)
         self.lv_stride = ti.Vector.field(self.dim, ti.i32, n_levels)
@@ -383,95 +385,135 @@ class CellMultigrid:
 
     # -- the V-cycle: the cell levels ---------------------------------------------------------------
     def coarse_cycle(self, serial: bool) -> None:
-        """From b_1 and x_1 (set by restrict_particles) to y_1: down, coarsest solve, up."""
+        """From b_1 and x_1 (set by restrict_particles) to y_1: down, coarsest solve, up. Levels large
+        enough for the thread pool get a kernel per pass; the small ones (all of them when `serial`) run
+        in one kernel on one thread: a kernel launch costs more than a small level's work."""
         last = len(self.levels) - 1
-        for l in range(last):
-            self.smooth_level(l, self.x, serial or self.levels[l].serial)
-            self.restrict_level(l, serial or self.levels[l + 1].serial)
-        self.coarsest_solve(last)
-        for l in range(last - 1, -1, -1):
-            self.prolong_level(l, serial or self.levels[l].serial)
-            self.smooth_level(l, self.y, serial or self.levels[l].serial)
+        first = 0 if serial else self.first_small
+        for l in range(first):
+            self.smooth_level(l, self.x)
+            self.restrict_level(l, self.levels[l + 1].serial)
+        self.small_levels_cycle(first, last)
+        for l in range(first - 1, -1, -1):
+            self.prolong_level(l)
+            self.smooth_level(l, self.y)
 
-    def smooth_level(self, l: int, v, serial: bool) -> None:
+    def smooth_level(self, l: int, v) -> None:
         """The cell_sweeps - 1 sweeps after the first, alternating between v and the scratch field."""
         src, dst = v, self.swept
         for _ in range(self.cell_sweeps - 1):
-            self.jacobi_sweep(l, src, dst, serial)
+            self.jacobi_sweep(l, src, dst)
             src, dst = dst, src
         if src is not v:
-            self.copy_level(l, src, v, serial)
+            self.copy_level(l, src, v)
+
+    @ti.func
+    def sweep_cell(self, l, k, src: ti.template(), dst: ti.template()):
+        """dst = src + omega D_l^-1 (b_l - A_l src) at the k-th cell of level l's active box: the second and
+        later smoothing sweeps (as many before as after the coarse correction: the V-cycle stays symmetric)."""
+        base = self.lv_offset[l]
+        i, c = self.box_cell(l, k)
+        swept = 0.0
+        if self.dinv[base + c] > 0.0:
+            swept = src[base + c] + self.omega * self.dinv[base + c] * (self.b[base + c] - self.apply_level(l, src, c, i))
+        dst[base + c] = swept
+
+    @ti.func
+    def copy_cell(self, l, k, src: ti.template(), dst: ti.template()):
+        _, c = self.box_cell(l, k)
+        dst[self.lv_offset[l] + c] = src[self.lv_offset[l] + c]
+
+    @ti.func
+    def restrict_cell(self, l, k):
+        """b_{l+1} = P^T (b_l - A_l x_l), then x_{l+1} = omega D^-1 b_{l+1}, at the k-th cell of level l + 1's box."""
+        fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
+        iC, C = self.box_cell(l + 1, k)
+        acc = 0.0
+        for ch in range(ti.static(2 ** self.dim)):
+            exists, i = self.child(l, iC, ch)
+            if exists:
+                c = self.linear(l, i)
+                if self.dinv[fine + c] > 0.0:  # an empty cell has b = x = 0
+                    acc += self.b[fine + c] - self.apply_level(l, self.x, c, i)
+        self.b[coarse + C] = acc
+        self.x[coarse + C] = self.omega * self.dinv[coarse + C] * acc
+
+    @ti.func
+    def prolong_cell(self, l, k):
+        """u = x_l + s P y_{l+1}, y_l = u + omega D^-1 (b_l - A_l u) at the k-th cell of level l's box, u of the
+        neighbours formed on the fly."""
+        fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
+        i, c = self.box_cell(l, k)
+        y = 0.0
+        if self.dinv[fine + c] > 0.0:  # empty cells stay 0
+            u = self.x[fine + c] + self.scale * self.y[coarse + self.linear(l + 1, self.parent(l, i))]
+            au = 0.0
+            for s in range(self.n_slots):
+                a_cs = self.stencil[fine + c, s]
+                if a_cs != 0.0:
+                    _, j = self.neighbour(l, i, s)
+                    uj = self.x[fine + self.linear(l, j)] + self.scale * self.y[coarse + self.linear(l + 1, self.parent(l, j))]
+                    au += a_cs * uj
+            y = u + self.omega * self.dinv[fine + c] * (self.b[fine + c] - au)
+        self.y[fine + c] = y
 
     @ti.kernel
-    def jacobi_sweep(self, l: ti.i32, src: ti.template(), dst: ti.template(), serial: ti.template()):
-        """dst = src + omega D_l^-1 (b_l - A_l src) on level l's active box: the second and later smoothing
-        sweeps (the same number before and after the coarse correction, so the V-cycle stays symmetric)."""
-        base = self.lv_offset[l]
-        ti.loop_config(serialize=serial)
+    def jacobi_sweep(self, l: ti.i32, src: ti.template(), dst: ti.template()):
         for k in range(self.box_count[l]):
-            i, c = self.box_cell(l, k)
-            swept = 0.0
-            if self.dinv[base + c] > 0.0:
-                swept = src[base + c] + self.omega * self.dinv[base + c] * (self.b[base + c] - self.apply_level(l, src, c, i))
-            dst[base + c] = swept
+            self.sweep_cell(l, k, src, dst)
 
     @ti.kernel
-    def copy_level(self, l: ti.i32, src: ti.template(), dst: ti.template(), serial: ti.template()):
-        base = self.lv_offset[l]
-        ti.loop_config(serialize=serial)
+    def copy_level(self, l: ti.i32, src: ti.template(), dst: ti.template()):
         for k in range(self.box_count[l]):
-            _, c = self.box_cell(l, k)
-            dst[base + c] = src[base + c]
+            self.copy_cell(l, k, src, dst)
 
     @ti.kernel
     def restrict_level(self, l: ti.i32, serial: ti.template()):
-        """b_{l+1} = P^T (b_l - A_l x_l), then x_{l+1} = omega D^-1 b_{l+1}."""
-        fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
         ti.loop_config(serialize=serial)
         for k in range(self.box_count[l + 1]):
-            iC, C = self.box_cell(l + 1, k)
-            acc = 0.0
-            for ch in range(ti.static(2 ** self.dim)):
-                exists, i = self.child(l, iC, ch)
-                if exists:
-                    c = self.linear(l, i)
-                    if self.dinv[fine + c] > 0.0:  # an empty cell has b = x = 0
-                        acc += self.b[fine + c] - self.apply_level(l, self.x, c, i)
-            self.b[coarse + C] = acc
-            self.x[coarse + C] = self.omega * self.dinv[coarse + C] * acc
+            self.restrict_cell(l, k)
 
     @ti.kernel
-    def prolong_level(self, l: ti.i32, serial: ti.template()):
-        """u = x_l + s P y_{l+1}, y_l = u + omega D^-1 (b_l - A_l u), u of the neighbours formed on the fly."""
-        fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
-        ti.loop_config(serialize=serial)
+    def prolong_level(self, l: ti.i32):
         for k in range(self.box_count[l]):
-            i, c = self.box_cell(l, k)
-            y = 0.0
-            if self.dinv[fine + c] > 0.0:  # empty cells stay 0
-                u = self.x[fine + c] + self.scale * self.y[coarse + self.linear(l + 1, self.parent(l, i))]
-                au = 0.0
-                for s in range(self.n_slots):
-                    a_cs = self.stencil[fine + c, s]
-                    if a_cs != 0.0:
-                        _, j = self.neighbour(l, i, s)
-                        uj = self.x[fine + self.linear(l, j)] + self.scale * self.y[coarse + self.linear(l + 1, self.parent(l, j))]
-                        au += a_cs * uj
-                y = u + self.omega * self.dinv[fine + c] * (self.b[fine + c] - au)
-            self.y[fine + c] = y
+            self.prolong_cell(l, k)
+
+    @ti.func
+    def smooth_cells(self, l, v: ti.template()):
+        """smooth_level's sweeps inside the one-thread kernel."""
+        for sweep in ti.static(range(self.cell_sweeps - 1)):
+            if ti.static(sweep % 2 == 0):
+                for k in range(self.box_count[l]):
+                    self.sweep_cell(l, k, v, self.swept)
+            else:
+                for k in range(self.box_count[l]):
+                    self.sweep_cell(l, k, self.swept, v)
+        if ti.static(self.cell_sweeps % 2 == 0):  # an odd number of extra sweeps ended in the scratch field
+            for k in range(self.box_count[l]):
+                self.copy_cell(l, k, self.swept, v)
 
     @ti.kernel
-    def coarsest_solve(self, l: ti.i32):
-        """y = (symmetric Gauss-Seidel)^sweeps b on the coarsest level, from y = 0, on one thread."""
-        base, count = self.lv_offset[l], self.lv_count[l]
+    def small_levels_cycle(self, first: ti.i32, last: ti.i32):
+        """The V-cycle from level `first` down to the coarsest and back, on one thread; on the coarsest level
+        y = (symmetric Gauss-Seidel)^sweeps b from y = 0."""
         ti.loop_config(serialize=True)
         for _ in range(1):
+            for l in range(first, last):
+                self.smooth_cells(l, self.x)
+                for k in range(self.box_count[l + 1]):
+                    self.restrict_cell(l, k)
+            base, count = self.lv_offset[last], self.lv_count[last]
             for c in range(count):
                 self.y[base + c] = 0.0
             for _sweep in range(self.sweeps):
                 for k in range(2 * count):
                     c = k if k < count else 2 * count - 1 - k  # forward, then backward
                     if self.dinv[base + c] > 0.0:
-                        i = self.coord(l, c)
-                        off_diag = self.apply_level(l, self.y, c, i) - self.stencil[base + c, ti.static(self.center)] * self.y[base + c]
+                        i = self.coord(last, c)
+                        off_diag = self.apply_level(last, self.y, c, i) - self.stencil[base + c, ti.static(self.center)] * self.y[base + c]
                         self.y[base + c] = (self.b[base + c] - off_diag) * self.dinv[base + c]
+            for m in range(last - first):
+                l = last - 1 - m
+                for k in range(self.box_count[l]):
+                    self.prolong_cell(l, k)
+                self.smooth_cells(l, self.y)
