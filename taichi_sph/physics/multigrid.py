@@ -31,12 +31,15 @@ lambda_max(D^-1 A) < 2, and lambda_max <= 2 for these diagonally dominant Laplac
 symmetric positive semi-definite whenever M_c is, and M_c is by induction (the symmetric Gauss-Seidel
 sweeps are). So CG stays valid for any s > 0. Piecewise-constant aggregation makes each Galerkin operator
 about twice as stiff as the operator rediscretised on the coarse grid (half the correction it should give:
-Braess 1995, Vanek 1995); s = 2 restores it. Measured on a manufactured problem on a jittered 2D tank
+Braess 1995, Vanek 1995); s ~ 2 restores it. Measured on a manufactured problem on a jittered 2D tank
 (43k particles, tolerance 1e-5): omega 2/3, s 1: 34 iterations; s 1.5: 22; s 2: 22; s 2.5: 30; omega 0.9,
 s 2: 14 (the default; omega < 1 keeps omega lambda_max < 2). With 4x the particles each time (43k, 165k,
 650k): 14, 18, 22 iterations, where Jacobi-CG needs 446 at 43k. An additive variant (no particle
 smoothing, z = omega D^-1 r + s P y_1: one matrix product per iteration instead of three) took 32-38
-iterations and was no faster per solve.
+iterations and was no faster per solve. With three sweeps on the cell levels (`cell_sweeps`), on the 2D
+dam break (100k particles, to t = 0.15 s) s = 1.8 beats 2 (13.8 against 15.9 iterations a step; at 1M
+particles 14-16 against 14-20 in the first steps), where the tank prefers 2 (650k: 18 against 16): s =
+1.8 is the default.
 
 Pure Neumann systems (closed and periodic boxes) stay consistent: every restriction of a zero-sum residual
 has zero sum; the constant null space is left to the caller, which makes z zero-mean (f32 round-off
