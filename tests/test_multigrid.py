@@ -218,3 +218,19 @@ def test_auto_takes_mgcg_from_the_threshold():
     assert PPE(solver="auto", mgcg_from=5000).solver_for(4999) == "cg"
     assert PPE(solver="auto", mgcg_from=5000).solver_for(5000) == "mgcg"
     assert PPE(solver="jacobi", mgcg_from=0).solver_for(10 ** 6) == "jacobi"
+
+
+def test_level_kernels_and_the_one_thread_cycle_apply_the_same_preconditioner(monkeypatch):
+    """Large cell levels run a kernel per pass (GPU, or the CPU's thread pool), small ones one kernel on one
+    thread: with every level made 'large' the V-cycle gives the same z = M r (Jacobi sweeps and restriction
+    sums do not depend on the order)."""
+    import taichi_sph.physics.multigrid as mg
+    z = {}
+    for name, cells in (("one_thread", mg.SERIAL_CELLS), ("per_level", {"cpu": 0, "gpu": 0})):
+        monkeypatch.setattr(mg, "SERIAL_CELLS", cells)
+        solver = mg_system(tank_cfg(dx=0.01, isph=MGCG))
+        assert solver.ppe.mg.first_small == (0 if name == "one_thread" else len(solver.ppe.mg.levels) - 1)
+        unknown = solver.ppe.role.to_numpy() == UNKNOWN
+        r = np.where(unknown, np.random.default_rng(5).standard_normal(solver.n), 0.0)
+        z[name] = precondition(solver, r)
+    assert np.abs(z["one_thread"] - z["per_level"]).max() < 1e-5 * np.abs(z["one_thread"]).max()

@@ -59,8 +59,9 @@ import taichi as ti
 
 # stop coarsening at this many cells (empty ones included); the coarsest level gets Gauss-Seidel sweeps
 COARSEST_CELLS = 64
-# levels with fewer cells run their loops on one thread
-SERIAL_CELLS = 4096
+# levels with fewer cells run their loops on one thread: on the CPU a thread-pool round costs more than
+# their work; on a GPU one thread is slow, so only the tiniest levels (a launch each costs more there)
+SERIAL_CELLS = {"cpu": 4096, "gpu": 256}
 
 
 @dataclass(frozen=True)
@@ -82,10 +83,6 @@ class GridLevel:
         for d in range(len(self.n) - 2, -1, -1):
             s[d] = s[d + 1] * self.n[d + 1]
         return tuple(s)
-
-    @property
-    def serial(self) -> bool:
-        return self.count < SERIAL_CELLS
 
 
 def coarsening_factors(n: tuple[int, ...], periodic: tuple[bool, ...]) -> tuple[int, ...]:
@@ -135,7 +132,9 @@ class CellMultigrid:
         assert self.levels[0].strides == ns._strides and self.levels[0].count == ns.total_cells
         self.top_count = self.levels[0].count
         # the first level small enough for one thread (the coarsest at the latest)
-        self.first_small = next(l for l, lv in enumerate(self.levels) if lv.serial or l == len(self.levels) - 1)
+        on_cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
+        self.small = [lv.count < SERIAL_CELLS["cpu" if on_cpu else "gpu"] for lv in self.levels]
+        self.first_small = next(l for l, small in enumerate(self.small) if small or l == len(self.levels) - 1)
         n_levels = len(self.levels)
         self.lv_n = ti.Vector.field(self.dim, ti.i32, n_levels)
         self.lv_stride = ti.Vector.field(self.dim, ti.i32, n_levels)
@@ -273,7 +272,7 @@ class CellMultigrid:
         self.galerkin_from_particles(serial)
         self.active_boxes(len(self.levels))
         for l in range(len(self.levels) - 1):
-            self.galerkin_coarsen(l, serial or self.levels[l + 1].serial)
+            self.galerkin_coarsen(l, serial or self.small[l + 1])
 
     @ti.kernel
     def active_boxes(self, n_levels: ti.i32):
@@ -395,7 +394,7 @@ class CellMultigrid:
         first = 0 if serial else self.first_small
         for l in range(first):
             self.smooth_level(l, self.x)
-            self.restrict_level(l, self.levels[l + 1].serial)
+            self.restrict_level(l, self.small[l + 1])
         self.small_levels_cycle(first, last)
         for l in range(first - 1, -1, -1):
             self.prolong_level(l)
