@@ -52,9 +52,11 @@ thread (a thread-pool round costs more than their work); nothing is read back by
 """
 
 # No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
+import itertools
 import math
 from dataclasses import dataclass
 
+import numpy as np
 import taichi as ti
 
 # stop coarsening at this many cells (empty ones included); the coarsest level gets Gauss-Seidel sweeps
@@ -155,6 +157,17 @@ class CellMultigrid:
         total = sum(lv.count for lv in self.levels)
         self.n_slots = 3 ** self.dim
         self.center = (self.n_slots - 1) // 2
+        # level 1's slot of a neighbour cell looked up by the linear index difference (no divisions), on grids
+        # without periodic axes, where each of the 3^dim offsets has its own difference
+        self.slot_reach = sum(self.levels[0].strides)
+        self.has_slot_table = not any(self.periodic)
+        if self.has_slot_table:
+            table = np.full(2 * self.slot_reach + 1, -1, dtype=np.int32)
+            for o in itertools.product((-1, 0, 1), repeat=self.dim):
+                delta = sum(o_d * st for o_d, st in zip(o, self.levels[0].strides))
+                table[delta + self.slot_reach] = sum((o_d + 1) * 3 ** d for d, o_d in enumerate(o))
+            self.slot_table = ti.field(ti.i32, table.size)
+            self.slot_table.from_numpy(table)
         self.stencil = ti.field(float, (total, self.n_slots))  # A_l[I, slot of the offset J - I]
         self.dinv = ti.field(float, total)  # 1 / A_l[I, I], 0 on empty cells
         self.b = ti.field(float, total)     # right side of each level
@@ -181,6 +194,18 @@ class CellMultigrid:
         for d in ti.static(range(self.dim)):
             i[d] = (c // ti.static(self.levels[0].strides[d])) % ti.static(self.levels[0].n[d])
         return i
+
+    @ti.func
+    def top_slot(self, c, ic, cb):
+        """Level 1's stencil slot of the cell cb seen from the cell c (coordinates ic)."""
+        s = -1
+        if ti.static(self.has_slot_table):
+            delta = cb - c
+            if -ti.static(self.slot_reach) <= delta and delta <= ti.static(self.slot_reach):
+                s = self.slot_table[delta + ti.static(self.slot_reach)]
+        if s < 0:  # periodic wrap, or a particle clamped into an edge cell
+            s = self.slot_of(0, self.top_coord(cb) - ic)
+        return s
 
     @ti.func
     def neighbour(self, l, i, s):
@@ -308,7 +333,7 @@ class CellMultigrid:
                     for k in range(NS.count[a]):
                         coeff = E.coeff[a, k]
                         if coeff != 0.0:
-                            row[self.slot_of(0, self.top_coord(NS.cell_id[NS.neighbors[a, k]]) - ic)] -= coeff
+                            row[self.top_slot(c, ic, NS.cell_id[NS.neighbors[a, k]])] -= coeff
             for s in ti.static(range(self.n_slots)):
                 self.stencil[c, s] = row[s]
             self.dinv[c] = self.inverse_diagonal(row)
