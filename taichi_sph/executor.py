@@ -17,7 +17,9 @@ from __future__ import annotations
 import gc
 import json
 import os
+import signal
 import sys
+import threading
 import time
 import traceback
 from dataclasses import dataclass
@@ -195,33 +197,69 @@ def _serial(jobs: list[Job], done: Callable[[Job, dict], None]) -> None:
             break
 
 
+class _StopOnInterrupt:
+    """While a pool runs: Ctrl-C reaches the workers too (same process group), each of which checkpoints
+    its case and reports it `interrupted`; here it only stops new cases from starting."""
+
+    def __init__(self) -> None:
+        self.stopped = False
+        self._previous = None
+
+    def __enter__(self) -> "_StopOnInterrupt":
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._stop)
+        return self
+
+    def _stop(self, *_args) -> None:
+        self.stopped = True
+
+    def __exit__(self, *exc: object) -> None:
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+
+
 def _pool(jobs: list[Job], workers: int, done: Callable[[Job, dict], None]) -> None:
     """A local pool of spawned processes. A dead worker breaks the pool: the cases it held are tried
-    once more on a fresh pool, then reported failed."""
+    once more on a fresh pool, then reported failed. After Ctrl-C (or a case that reports itself
+    interrupted) no new case starts; the running ones finish as `interrupted`."""
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    from concurrent.futures import CancelledError, ProcessPoolExecutor, as_completed
     from concurrent.futures.process import BrokenProcessPool
 
     tries = {job.name: 0 for job in jobs}
     pending = list(jobs)
-    while pending:
-        retry: list[Job] = []
-        with ProcessPoolExecutor(min(workers, len(pending)), mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(run_job, job): job for job in pending}
-            for fut in as_completed(futures):
-                job = futures[fut]
-                try:
-                    summary = fut.result()
-                except BrokenProcessPool:
-                    tries[job.name] += 1
-                    if tries[job.name] < 2:
-                        retry.append(job)
+    with _StopOnInterrupt() as interrupt:
+        while pending and not interrupt.stopped:
+            retry: list[Job] = []
+            context = multiprocessing.get_context("spawn")
+            with ProcessPoolExecutor(min(workers, len(pending)), mp_context=context) as pool:
+                futures = {pool.submit(run_job, job): job for job in pending}
+                for fut in as_completed(futures):
+                    job = futures[fut]
+                    try:
+                        summary = fut.result()
+                    except CancelledError:
                         continue
-                    summary = failed_summary(job.cfg, "the worker process died (killed, or crashed inside Taichi)")
-                except Exception as e:  # noqa: BLE001 (the case failed, not the study)
-                    summary = failed_summary(job.cfg, f"{type(e).__name__}: {e}")
-                done(job, summary)
-        pending = retry
+                    except KeyboardInterrupt:  # Ctrl-C reached the worker outside a run's own handler
+                        summary = {"scene": job.cfg.name, "solver": job.cfg.solver, "status": "interrupted",
+                                   "exit_code": EXIT_INTERRUPTED, "errors": {}, "warnings": []}
+                    except BrokenProcessPool:
+                        tries[job.name] += 1
+                        if interrupt.stopped:
+                            continue
+                        if tries[job.name] < 2:
+                            retry.append(job)
+                            continue
+                        summary = failed_summary(job.cfg, "the worker process died (killed, or crashed inside Taichi)")
+                    except Exception as e:  # noqa: BLE001 (the case failed, not the study)
+                        summary = failed_summary(job.cfg, f"{type(e).__name__}: {e}")
+                    done(job, summary)
+                    if summary.get("status") == "interrupted":
+                        interrupt.stopped = True
+                    if interrupt.stopped:
+                        for f in futures:
+                            f.cancel()
+            pending = retry
 
 
 def _import_ray():
@@ -252,14 +290,19 @@ def _ray(jobs: list[Job], address: str, done: Callable[[Job, dict], None]) -> No
         task = ray.remote(run_job)
         refs = {task.options(**ray_resources(job.cfg)).remote(job): job for job in jobs}
         waiting = list(refs)
-        while waiting:
-            ready, waiting = ray.wait(waiting, num_returns=1)
-            job = refs[ready[0]]
-            try:
-                summary = ray.get(ready[0])
-            except Exception as e:  # noqa: BLE001 (a task or worker that died: the case failed)
-                summary = failed_summary(job.cfg, f"Ray task failed: {str(e).splitlines()[0]}")
-            done(job, summary)
+        try:
+            while waiting:
+                ready, waiting = ray.wait(waiting, num_returns=1)
+                job = refs[ready[0]]
+                try:
+                    summary = ray.get(ready[0])
+                except Exception as e:  # noqa: BLE001 (a task or worker that died: the case failed)
+                    summary = failed_summary(job.cfg, f"Ray task failed: {str(e).splitlines()[0]}")
+                done(job, summary)
+        except KeyboardInterrupt:
+            for ref in waiting:  # the cluster's tasks do not see this Ctrl-C: stop them
+                ray.cancel(ref, force=True)
+            raise
     finally:
         if started:
             ray.shutdown()
