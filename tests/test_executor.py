@@ -135,6 +135,7 @@ def test_cluster_without_ray_exits_2_with_the_install_hint(capsys, monkeypatch, 
 @pytest.mark.parametrize("argv, fragment", [
     (["--jobs", "0"], "--jobs must be >= 1"),
     (["--cluster", "localhost:6379"], "--cluster expects 'auto' or 'ray://HOST:PORT'"),
+    (["--jobs", "2", "--cluster", "auto"], "--jobs and --cluster exclude each other"),
 ])
 def test_bad_dispatch_options_exit_2(capsys, tmp_path, argv, fragment):
     code = main(["compare", str(TANK), "--out", str(tmp_path)] + argv)
