@@ -16,13 +16,14 @@ from __future__ import annotations
 
 import gc
 import json
+import logging
 import os
 import signal
 import sys
 import threading
 import time
 import traceback
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable, Iterable
 
@@ -283,12 +284,14 @@ def _ray(jobs: list[Job], address: str, done: Callable[[Job, dict], None]) -> No
     started = not ray.is_initialized()
     if started:
         try:
-            ray.init(address=address, log_to_driver=False)
+            ray.init(address=address, log_to_driver=False, logging_level=logging.WARNING)
         except (ConnectionError, RuntimeError, ValueError) as e:
             raise UsageError(f"--cluster {address}: cannot connect to Ray: {str(e).splitlines()[0]}") from None
     try:
         task = ray.remote(run_job)
-        refs = {task.options(**ray_resources(job.cfg)).remote(job): job for job in jobs}
+        # a Ray worker's working directory is not this one: send absolute run folders
+        refs = {task.options(**ray_resources(job.cfg)).remote(replace(job, run_dir=job.run_dir.resolve())): job
+                for job in jobs}
         waiting = list(refs)
         try:
             while waiting:
