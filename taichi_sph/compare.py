@@ -158,11 +158,11 @@ def compare(cfg: Config, out_dir: Path, *, solvers: tuple[str, ...] = SOLVERS, r
     files, assembled from the run folders. Returns the comparison dict (also in out_dir/comparison.json)."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     extra = side_by_side_snapshots(cfg) if render else []
     configs = {s: derive_config(cfg, [f"solver={s}"] * (cfg.solver != s) + extra) for s in solvers}
     jobs = [Job(s, configs[s], out_dir / s, render=render) for s in solvers]
     summaries = run_cases(jobs, dispatch, label=f"compare {cfg.name}")
+    out_dir.mkdir(parents=True, exist_ok=True)  # (after the cases: a cluster that cannot be reached writes nothing)
     reports: dict[str, dict] = {}
     for solver, summary in summaries.items():
         reports[solver] = r = solver_report(configs[solver], summary)

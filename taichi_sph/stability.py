@@ -410,9 +410,9 @@ def run_stability(out_dir: Path, *, cases=BATTERY, solvers=("wcsph", "isph"), ex
     """The battery, then the map; writes stability.json, stability.md and stability_map.png."""
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     rows = run_battery(tuple(cases), tuple(solvers), out_dir, extra_configs=extra_configs,
                        extra_overrides=extra_overrides, render=render, log=log, dispatch=dispatch)
+    out_dir.mkdir(parents=True, exist_ok=True)  # (after the cases: a cluster that cannot be reached writes nothing)
     result = {"cases": rows}
     if with_map and not any(r["verdict"] == "interrupted" for r in rows):
         result["map"] = stability_map(out_dir, log=log, dispatch=dispatch)

@@ -93,11 +93,11 @@ def sweep(cfg: Config, dxs: list[float], solvers: list[str], out_dir: Path, log=
     write the files, assembled from the run folders."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     cases = [(solver, dx) for solver in solvers for dx in dxs]
     jobs = [Job(case_name(solver, dx), derive_config(cfg, [f"solver={solver}", f"particles.dx={dx}"]),
                 out_dir / case_name(solver, dx)) for solver, dx in cases]
     summaries = run_cases(jobs, dispatch, label=f"sweep {cfg.name}")
+    out_dir.mkdir(parents=True, exist_ok=True)  # (after the cases: a cluster that cannot be reached writes nothing)
     rows = [sweep_row(solver, dx, summaries[case_name(solver, dx)]) for solver, dx in cases
             if case_name(solver, dx) in summaries]
     for r in rows:

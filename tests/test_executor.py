@@ -175,3 +175,14 @@ def test_ray_resources_per_arch():
     from dataclasses import replace
     assert ex.ray_resources(cfg) == {"num_cpus": 1}
     assert ex.ray_resources(replace(cfg, arch="cuda")) == {"num_gpus": 1}
+
+
+def test_cluster_that_cannot_be_reached_exits_2_and_writes_nothing(capsys, monkeypatch, tmp_path):
+    pytest.importorskip("ray", reason="Ray is not installed (pip install taichi-sph[cluster]); "
+                                      "scripts/setup.sh leaves it out, so CI skips the Ray path")
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    out = tmp_path / "study"
+    code = main(["sweep", str(TANK), "--cluster", "auto", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err[-1].startswith("error: --cluster auto: cannot connect to Ray")
+    assert not out.exists()
