@@ -137,10 +137,10 @@ def is_finished(run_dir: Path) -> bool:
 
 
 def _record(job: Job, summary: dict) -> None:
-    """Make sure the folder tells what happened: a case whose folder has no summary, or only the
-    `running` one of a dead worker, gets the executor's own."""
+    """Make sure the folder tells what happened: a case whose folder has no summary, the `running` one of
+    a dead worker, or one that disagrees with what came back (a stale one), gets the returned summary."""
     s = read_case(job.run_dir)
-    if s is None or s.get("status") == "running":
+    if s is None or s.get("status") != summary.get("status"):
         job.run_dir.mkdir(parents=True, exist_ok=True)
         RunFolder(job.run_dir).write_summary({k: v for k, v in summary.items() if k != "run_dir"})
 
