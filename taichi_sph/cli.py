@@ -98,6 +98,12 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--no-render", action="store_true")
         if name in ("compare", "sweep"):
             p.add_argument("--force", action="store_true", help="run even when the memory pre-flight refuses")
+        p.add_argument("--jobs", type=int, metavar="N",
+                       help="cases at once in local processes (default: 1 on machines with <= 4 cores, else cores / 4)")
+        p.add_argument("--cluster", metavar="auto|ray://HOST:PORT",
+                       help="run the cases as tasks on a Ray cluster (pip install taichi-sph[cluster])")
+        p.add_argument("--resume", action="store_true",
+                       help="run only the cases whose run folder lacks a finished summary.json")
         _add_common(p)
     return parser
 

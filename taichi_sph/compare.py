@@ -8,23 +8,22 @@ which solver reached the lower error per unit of wall time. `plots/<column>.png`
 timeseries column for both solvers; `side_by_side.mp4` draws the two runs next to each other with
 one colour range (from snapshots written at every frame time).
 
-`run_case(cfg, out_dir) -> summary` is the one unit of work that compare, sweep and stability
-dispatch: it never raises for a broken run (a crashing solver comes back as status "failed").
+Both runs go through executor.run_cases (in this process, a process pool or a Ray cluster), each into
+out_dir/<solver>/; the report is assembled from those folders' summary.json.
 """
 
 from __future__ import annotations
 
-import gc
 import json
 import math
 import sys
-import traceback
 from pathlib import Path
 
 import numpy as np
 
 from .config import Config, apply_overrides, config_from_dict, to_dict
-from .errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, SPHError
+from .errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE
+from .executor import Dispatch, Job, dispatch_from_args, run_case, run_cases  # noqa: F401 (run_case: the unit of work, kept importable here)
 from .geometry import FLUID
 from .output import RunFolder, load_snapshot, read_timeseries, to_jsonable
 
@@ -42,47 +41,6 @@ def derive_config(cfg: Config, overrides: list[str]) -> Config:
         return cfg
     data = apply_overrides(to_dict(cfg), list(overrides))
     return config_from_dict(data, f"{cfg.name} (with {', '.join(overrides)})")
-
-
-def release_runtime(cfg: Config) -> None:
-    """Free the fields of the run that just ended: Taichi keeps every field until ti.reset, so a
-    process running dozens of cases would grow. Re-initialises with the run's arch and precision."""
-    from .runtime import init_taichi, reset
-
-    gc.collect()  # closes a renderer's GGUI window before the runtime goes
-    reset()
-    init_taichi(cfg.arch, cfg.precision)
-
-
-def run_case(cfg: Config, out_dir: Path, *, render: bool = False, quiet: bool = True, log=None) -> dict:
-    """Run one scene with one solver into `out_dir` and return its summary (see DESIGN.md).
-
-    A run that raises comes back as {"status": "failed", "error": "..."} with the traceback in
-    `out_dir/error.txt`: one broken solver must not lose the other results of a batch.
-    """
-    from .simulation import Simulation
-
-    out_dir = Path(out_dir)
-    try:
-        result = Simulation(cfg, out_dir, render=render, quiet=quiet, log=log).run()
-        summary = dict(result.summary)
-        summary["exit_code"] = result.exit_code
-    except KeyboardInterrupt:
-        raise
-    except Exception as e:  # noqa: BLE001 (reported in the summary, traceback kept on disk)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "error.txt").write_text(traceback.format_exc())
-        message = str(e).splitlines()[0] if str(e) else ""
-        summary = {"scene": cfg.name, "solver": cfg.solver, "status": "failed", "exit_code": getattr(e, "exit_code", 1),
-                   "error": f"{type(e).__name__}: {message}" if not isinstance(e, SPHError) else message,
-                   "errors": {}, "warnings": []}
-    finally:
-        try:
-            release_runtime(cfg)
-        except SPHError:
-            pass
-    summary["run_dir"] = str(out_dir)
-    return summary
 
 
 def final_snapshot(run_dir: Path) -> dict | None:
@@ -195,26 +153,21 @@ def choose_winner(reports: dict[str, dict], metric: str | None) -> dict:
 
 # ----------------------------------------------------------------------------- the comparison
 def compare(cfg: Config, out_dir: Path, *, solvers: tuple[str, ...] = SOLVERS, render: bool = True,
-            log=None) -> dict:
-    """Run `cfg` with each solver into out_dir/<solver>/ and write the comparison files. Returns
-    the comparison dict (also written to out_dir/comparison.json)."""
+            log=None, dispatch: Dispatch = Dispatch()) -> dict:
+    """Run `cfg` with each solver into out_dir/<solver>/ (through `dispatch`) and write the comparison
+    files, assembled from the run folders. Returns the comparison dict (also in out_dir/comparison.json)."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    reports: dict[str, dict] = {}
-    configs: dict[str, Config] = {}
     extra = side_by_side_snapshots(cfg) if render else []
-    for solver in solvers:
-        c = derive_config(cfg, [f"solver={solver}"] * (cfg.solver != solver) + extra)
-        configs[solver] = c
-        log(f"compare: {cfg.name} with {solver} ...")
-        summary = run_case(c, out_dir / solver, render=render, quiet=True)
-        reports[solver] = solver_report(c, summary)
-        r = reports[solver]
+    configs = {s: derive_config(cfg, [f"solver={s}"] * (cfg.solver != s) + extra) for s in solvers}
+    jobs = [Job(s, configs[s], out_dir / s, render=render) for s in solvers]
+    summaries = run_cases(jobs, dispatch, label=f"compare {cfg.name}")
+    out_dir.mkdir(parents=True, exist_ok=True)  # (after the cases: a cluster that cannot be reached writes nothing)
+    reports: dict[str, dict] = {}
+    for solver, summary in summaries.items():
+        reports[solver] = r = solver_report(configs[solver], summary)
         log(f"compare: {solver}: {r['status']}" + (f" ({r['error']})" if r.get("error") else "")
             + (f", {r['steps']} steps in {r['wall_time_s']:.1f} s" if r.get("wall_time_s") is not None else ""))
-        if r["status"] == "interrupted":
-            break
 
     metrics = [primary_error(r.get("errors", {})) for r in reports.values()]
     metric = next((m for m in metrics if m is not None), None)
@@ -326,6 +279,7 @@ def cmd_compare(args) -> int:
     from .cli import _load
 
     cfg = _load(args)
+    dispatch = dispatch_from_args(args)
     from dataclasses import replace
 
     from .checks import preflight
@@ -335,7 +289,7 @@ def cmd_compare(args) -> int:
     out = Path(args.out) if args.out else Path("renders") / f"{cfg.name}-compare"
     quiet = getattr(args, "quiet", False)
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr))
-    result = compare(cfg, out, render=not args.no_render, log=log)
+    result = compare(cfg, out, render=not args.no_render, log=log, dispatch=dispatch)
     if not quiet:
         for name, r in result["solvers"].items():
             errs = ", ".join(f"{k} = {_fmt(v)}" for k, v in r.get("errors", {}).items())

@@ -30,9 +30,10 @@ from pathlib import Path
 import numpy as np
 
 from .checks import severe_checks, time_step_limits
-from .compare import _fmt, _is_number, derive_config, run_case
+from .compare import _fmt, _is_number, derive_config
 from .config import Config, bundled_configs_dir, load_config
 from .errors import EXIT_INTERRUPTED, EXIT_OK
+from .executor import Dispatch, Job, dispatch_from_args, run_case, run_cases
 from .geometry import FLUID
 from .output import RunFolder, load_snapshot, to_jsonable
 
@@ -225,19 +226,18 @@ def _snapshot_every(cfg: Config) -> float:
     return float(f"{every:.4g}")
 
 
-def run_one(cfg: Config, out_dir: Path, *, check: bool = True, render: bool = False) -> dict:
-    """Refuse (severe a-priori check) or run, measure and classify one config. Returns a table row."""
-    severe = severe_checks(cfg) if check else []
+def case_row(cfg: Config, out_dir: Path, summary: dict | None, severe=()) -> dict:
+    """A table row from a case's summary (as read from its folder) and the measurements of its snapshots;
+    `severe` checks make it `refused` whatever the run did."""
     row = {"solver": cfg.solver, "dx": cfg.particles.dx, "c0": cfg.sound_speed if cfg.solver == "wcsph" else None,
            "dt": None if cfg.time.dt == "auto" else cfg.time.dt, "run_dir": str(out_dir)}
     if severe:
-        v = classify(None, severe=severe)
-        row.update(asdict(v))
+        row.update(asdict(classify(None, severe=severe)))
         return row
-    summary = run_case(cfg, out_dir, render=render)
-    meas = run_measurements(cfg, out_dir) if summary["status"] in ("ok", "unstable") else {}
-    v = classify(summary, guard=cfg.guards.max_density_error, measurements=meas)
-    row.update(asdict(v))
+    ran = summary is not None and summary.get("status") in ("ok", "unstable")
+    meas = run_measurements(cfg, out_dir) if ran else {}
+    row.update(asdict(classify(summary, guard=cfg.guards.max_density_error, measurements=meas)))
+    summary = summary or {}
     row.update({"max_density_error": summary.get("max_density_error"), "steps": summary.get("steps"),
                 "t_reached": summary.get("t_end"), "wall_time_s": summary.get("wall_time_s"),
                 "compile_time_s": summary.get("compile_time_s"), "n_particles":
@@ -245,22 +245,45 @@ def run_one(cfg: Config, out_dir: Path, *, check: bool = True, render: bool = Fa
     return row
 
 
-def run_battery(cases: tuple[Case, ...], solvers: tuple[str, ...], out_dir: Path, *, extra_configs=(),
-                extra_overrides=(), render: bool = False, run_refused: bool = True, log=None) -> list[dict]:
-    """Every case with every solver (then the user's configs, with `extra_overrides`), one at a time."""
-    log = log or (lambda msg: print(msg, file=sys.stderr))
-    rows: list[dict] = []
+def run_one(cfg: Config, out_dir: Path, *, check: bool = True, render: bool = False) -> dict:
+    """Refuse (severe a-priori check) or run, measure and classify one config, in this process. Returns a table row."""
+    severe = severe_checks(cfg) if check else []
+    summary = None if severe else run_case(cfg, out_dir, render=render)
+    return case_row(cfg, out_dir, summary, severe)
+
+
+def battery_jobs(cases: tuple[Case, ...], solvers: tuple[str, ...], extra_configs=(), extra_overrides=()) -> list:
+    """(case, solver, config) for every case with every solver, then the user's configs."""
     jobs = [(c, s, case_config(c, s)) for c in cases for s in solvers]
     for path in extra_configs:
         for s in solvers:
             cfg = load_config(path, list(extra_overrides) + [f"solver={s}"])
             cfg = derive_config(cfg, [f"output.snapshot_every={_snapshot_every(cfg)}"])
             jobs.append((Case(cfg.name, str(path), expect="either", note=f"user config {path}"), s, cfg))
-    for case, solver, cfg in jobs:
-        run_dir = out_dir / "runs" / f"{case.name}-{solver}"
-        row = run_one(cfg, run_dir, render=render)
-        if row["verdict"] == "refused" and run_refused:
-            unchecked = run_one(cfg, run_dir, check=False)
+    return jobs
+
+
+def run_battery(cases: tuple[Case, ...], solvers: tuple[str, ...], out_dir: Path, *, extra_configs=(),
+                extra_overrides=(), render: bool = False, run_refused: bool = True, log=None,
+                dispatch: Dispatch = Dispatch()) -> list[dict]:
+    """Every case with every solver (then the user's configs, with `extra_overrides`), through `dispatch`,
+    each into out_dir/runs/<case>-<solver>/; the rows are assembled from those folders. A refused case
+    (severe check) is still run once, unchecked and without frames, when `run_refused`."""
+    log = log or (lambda msg: print(msg, file=sys.stderr))
+    entries = []
+    for case, solver, cfg in battery_jobs(cases, solvers, extra_configs, extra_overrides):
+        name = f"{case.name}-{solver}"
+        entries.append((case, solver, cfg, name, out_dir / "runs" / name, severe_checks(cfg)))
+    jobs = [Job(name, cfg, run_dir, render=render and not severe) for _, _, cfg, name, run_dir, severe in entries
+            if run_refused or not severe]
+    summaries = run_cases(jobs, dispatch, label="stability")
+    rows: list[dict] = []
+    for case, solver, cfg, name, run_dir, severe in entries:
+        if name not in summaries and (run_refused or not severe):
+            continue  # not reached (the study was interrupted)
+        row = case_row(cfg, run_dir, summaries.get(name), severe)
+        if severe and name in summaries:
+            unchecked = case_row(cfg, run_dir, summaries[name])
             row["if_run_anyway"] = {k: unchecked.get(k) for k in ("verdict", "criterion", "reason", "max_density_error",
                                                                   "energy_drift", "energy_growth", "steps", "t_reached")}
         row.update({"case": case.name, "note": case.note, "expected": case.expected(solver)})
@@ -269,14 +292,13 @@ def run_battery(cases: tuple[Case, ...], solvers: tuple[str, ...], out_dir: Path
         log(f"stability: {case.name:22s} {solver:6s} {row['verdict']}" + (f" ({row['criterion']})" if row["criterion"] else "")
             + (f"; if run anyway: {row['if_run_anyway']['verdict']} ({row['if_run_anyway']['criterion']})"
                if "if_run_anyway" in row else ""))
-        if row["verdict"] == "interrupted":
-            break
     return rows
 
 
 def stability_map(out_dir: Path, *, cfl_values=MAP_CFL, ratios=MAP_RATIO, scene: str = MAP_SCENE,
-                  t_end: float = MAP_T_END, log=None) -> dict:
-    """WCSPH on one scene over CFL number x c0 / U; every cell run (checks not applied, but noted)."""
+                  t_end: float = MAP_T_END, log=None, dispatch: Dispatch = Dispatch()) -> dict:
+    """WCSPH on one scene over CFL number x c0 / U; every cell run (checks not applied, but noted),
+    through `dispatch`, into out_dir/map/cfl<cfl>_ratio<ratio>/."""
     from .plots import plot_stability_map
 
     log = log or (lambda msg: print(msg, file=sys.stderr))
@@ -285,24 +307,28 @@ def stability_map(out_dir: Path, *, cfl_values=MAP_CFL, ratios=MAP_RATIO, scene:
     err = np.full((len(ratios), len(cfl_values)), np.nan)
     bad = np.zeros_like(err, dtype=bool)
     labels = [["" for _ in cfl_values] for _ in ratios]
-    for i, ratio in enumerate(ratios):
-        for j, cfl in enumerate(cfl_values):
-            case = Case(base.name, scene, base.overrides + (f"time.cfl={cfl}", f"fluid.c0_factor={ratio}"))
-            cfg = case_config(case, "wcsph")
-            flagged = [c.code for c in severe_checks(cfg)]
-            row = run_one(cfg, out_dir / "map" / f"cfl{cfl:g}_ratio{ratio:g}", check=False)
-            row.update({"cfl": cfl, "c0_ratio": ratio, "flagged": flagged})
-            cells.append(row)
-            e = row.get("max_density_error")
-            bad[i, j] = row["verdict"] != "stable"
-            # an unstable run's last output row predates the blow-up: its density error means little
-            err[i, j] = e if _is_number(e) and not bad[i, j] else np.nan
-            word = "stable" if row["verdict"] == "stable" else (row["criterion"] or row["verdict"])
-            labels[i][j] = (f"{word}\n{_fmt(e)}" if not bad[i, j] else word) + ("\n(refused)" if flagged else "")
-            log(f"stability map: cfl {cfl:g}, c0/U {ratio:g}: {row['verdict']}"
-                + (f" ({row['criterion']})" if row["criterion"] else "") + f", max density error {_fmt(e)}")
-            if row["verdict"] == "interrupted":
-                break
+    grid = [(i, j, ratio, cfl) for i, ratio in enumerate(ratios) for j, cfl in enumerate(cfl_values)]
+    configs = {(i, j): case_config(Case(base.name, scene, base.overrides + (f"time.cfl={cfl}", f"fluid.c0_factor={ratio}")),
+                                   "wcsph") for i, j, ratio, cfl in grid}
+    names = {(i, j): f"cfl{cfl:g}_ratio{ratio:g}" for i, j, ratio, cfl in grid}
+    jobs = [Job(names[i, j], configs[i, j], out_dir / "map" / names[i, j]) for i, j, _, _ in grid]
+    summaries = run_cases(jobs, dispatch, label="stability map")
+    for i, j, ratio, cfl in grid:
+        if names[i, j] not in summaries:
+            continue
+        cfg = configs[i, j]
+        flagged = [c.code for c in severe_checks(cfg)]
+        row = case_row(cfg, out_dir / "map" / names[i, j], summaries[names[i, j]])
+        row.update({"cfl": cfl, "c0_ratio": ratio, "flagged": flagged})
+        cells.append(row)
+        e = row.get("max_density_error")
+        bad[i, j] = row["verdict"] != "stable"
+        # an unstable run's last output row predates the blow-up: its density error means little
+        err[i, j] = e if _is_number(e) and not bad[i, j] else np.nan
+        word = "stable" if row["verdict"] == "stable" else (row["criterion"] or row["verdict"])
+        labels[i][j] = (f"{word}\n{_fmt(e)}" if not bad[i, j] else word) + ("\n(refused)" if flagged else "")
+        log(f"stability map: cfl {cfl:g}, c0/U {ratio:g}: {row['verdict']}"
+            + (f" ({row['criterion']})" if row["criterion"] else "") + f", max density error {_fmt(e)}")
     cfg0 = case_config(base, "wcsph")
     title = f"WCSPH stability map: {Path(scene).stem}, dx {cfg0.particles.dx:g}, t = {t_end:g} s (hatched: not stable)"
     path = plot_stability_map(list(cfl_values), list(ratios), err, labels, out_dir / "stability_map.png", title,
@@ -380,16 +406,16 @@ def stability_markdown(result: dict) -> str:
 
 
 def run_stability(out_dir: Path, *, cases=BATTERY, solvers=("wcsph", "isph"), extra_configs=(), extra_overrides=(),
-                  with_map: bool = True, render: bool = False, log=None) -> dict:
+                  with_map: bool = True, render: bool = False, log=None, dispatch: Dispatch = Dispatch()) -> dict:
     """The battery, then the map; writes stability.json, stability.md and stability_map.png."""
     t0 = time.perf_counter()
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     rows = run_battery(tuple(cases), tuple(solvers), out_dir, extra_configs=extra_configs,
-                       extra_overrides=extra_overrides, render=render, log=log)
+                       extra_overrides=extra_overrides, render=render, log=log, dispatch=dispatch)
+    out_dir.mkdir(parents=True, exist_ok=True)  # (after the cases: a cluster that cannot be reached writes nothing)
     result = {"cases": rows}
     if with_map and not any(r["verdict"] == "interrupted" for r in rows):
-        result["map"] = stability_map(out_dir, log=log)
+        result["map"] = stability_map(out_dir, log=log, dispatch=dispatch)
     result["runtime_s"] = time.perf_counter() - t0
     (out_dir / "stability.json").write_text(json.dumps(to_jsonable(result), indent=2) + "\n")
     (out_dir / "stability.md").write_text(stability_markdown(result))
@@ -401,11 +427,12 @@ def cmd_stability(args) -> int:
     overrides = list(args.overrides) + ([f"arch={args.arch}"] if getattr(args, "arch", None) else [])
     for path in args.configs:  # a bad extra config is refused before anything runs
         load_config(path, overrides)
+    dispatch = dispatch_from_args(args)
     out = Path(args.out) if args.out else Path("renders") / "stability"
     quiet = getattr(args, "quiet", False)
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr))
     result = run_stability(out, extra_configs=tuple(args.configs), extra_overrides=tuple(overrides),
-                           render=not args.no_render, log=log)
+                           render=not args.no_render, log=log, dispatch=dispatch)
     if not quiet:
         print(stability_markdown(result))
         print(f"report: {out / 'stability.md'}")

@@ -5,8 +5,8 @@ steps, status), `error_vs_time.png` (log-log, one line per solver, points labell
 `sweep.json` / `sweep.md` with the observed convergence order per solver: the least-squares slope
 of log(error) against log(dx) over the finished runs.
 
-Every run goes through `compare.run_case(cfg, out_dir) -> summary`, so a batch can be sent
-elsewhere (a cluster) by replacing that one call.
+The runs go through executor.run_cases (in this process, a process pool or a Ray cluster), each into
+out_dir/<solver>_dx<dx>/; the report is assembled from those folders' summary.json.
 """
 
 from __future__ import annotations
@@ -19,9 +19,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .compare import _fmt, _is_number, batch_exit_code, derive_config, primary_error, run_case
+from .compare import _fmt, _is_number, batch_exit_code, derive_config, primary_error
 from .config import Config
 from .errors import UsageError
+from .executor import Dispatch, Job, dispatch_from_args, run_cases
 from .output import to_jsonable
 
 DEFAULT_REFINEMENTS = (1.0, 1.5, 2.0)  # dx, dx / 1.5, dx / 2
@@ -67,36 +68,41 @@ def convergence_order(dx, error) -> float | None:
     return float(np.polyfit(np.log(dx[ok]), np.log(err[ok]), 1)[0])
 
 
-def sweep(cfg: Config, dxs: list[float], solvers: list[str], out_dir: Path, log=None) -> dict:
-    """Run every (solver, dx) with rendering off into out_dir/<solver>_dx<dx>/ and write the files."""
+def case_name(solver: str, dx: float) -> str:
+    """The run folder of one sweep case, relative to the sweep's folder."""
+    return f"{solver}_dx{dx:g}"
+
+
+def sweep_row(solver: str, dx: float, s: dict) -> dict:
+    """One line of sweep.csv from a case's summary."""
+    n_fluid, n_wall = s.get("n_fluid"), s.get("n_wall")
+    row = {"solver": solver, "dx": dx, "n_particles": (n_fluid or 0) + (n_wall or 0) if n_fluid else None,
+           "n_fluid": n_fluid, "status": s["status"], "wall_time_s": s.get("wall_time_s"),
+           "compile_time_s": s.get("compile_time_s"), "steps": s.get("steps"),
+           "max_density_error": s.get("max_density_error"), "errors": s.get("errors", {}), "run_dir": s["run_dir"]}
+    if s.get("error"):
+        row["error"] = s["error"]
+    if s.get("instability"):
+        row["instability"] = s["instability"].get("criterion")
+    return row
+
+
+def sweep(cfg: Config, dxs: list[float], solvers: list[str], out_dir: Path, log=None,
+          dispatch: Dispatch = Dispatch()) -> dict:
+    """Run every (solver, dx) with rendering off into out_dir/<solver>_dx<dx>/ (through `dispatch`) and
+    write the files, assembled from the run folders."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
-    rows: list[dict] = []
-    interrupted = False
-    for solver in solvers:
-        for dx in dxs:
-            case = derive_config(cfg, [f"solver={solver}", f"particles.dx={dx}"])
-            log(f"sweep: {solver} at dx = {dx:g} ...")
-            s = run_case(case, out_dir / f"{solver}_dx{dx:g}")
-            n_fluid, n_wall = s.get("n_fluid"), s.get("n_wall")
-            row = {"solver": solver, "dx": dx, "n_particles": (n_fluid or 0) + (n_wall or 0) if n_fluid else None,
-                   "n_fluid": n_fluid, "status": s["status"], "wall_time_s": s.get("wall_time_s"),
-                   "compile_time_s": s.get("compile_time_s"), "steps": s.get("steps"),
-                   "max_density_error": s.get("max_density_error"), "errors": s.get("errors", {}),
-                   "run_dir": s["run_dir"]}
-            if s.get("error"):
-                row["error"] = s["error"]
-            if s.get("instability"):
-                row["instability"] = s["instability"].get("criterion")
-            rows.append(row)
-            log(f"sweep: {solver} dx = {dx:g}: {s['status']}"
-                + (f", {s['steps']} steps in {s['wall_time_s']:.1f} s" if s.get("wall_time_s") is not None else ""))
-            if s["status"] == "interrupted":
-                interrupted = True
-                break
-        if interrupted:
-            break
+    cases = [(solver, dx) for solver in solvers for dx in dxs]
+    jobs = [Job(case_name(solver, dx), derive_config(cfg, [f"solver={solver}", f"particles.dx={dx}"]),
+                out_dir / case_name(solver, dx)) for solver, dx in cases]
+    summaries = run_cases(jobs, dispatch, label=f"sweep {cfg.name}")
+    out_dir.mkdir(parents=True, exist_ok=True)  # (after the cases: a cluster that cannot be reached writes nothing)
+    rows = [sweep_row(solver, dx, summaries[case_name(solver, dx)]) for solver, dx in cases
+            if case_name(solver, dx) in summaries]
+    for r in rows:
+        log(f"sweep: {r['solver']} dx = {r['dx']:g}: {r['status']}"
+            + (f", {r['steps']} steps in {r['wall_time_s']:.1f} s" if r.get("wall_time_s") is not None else ""))
 
     metric_names: list[str] = []
     for r in rows:
@@ -161,6 +167,7 @@ def cmd_sweep(args) -> int:
     cfg = _load(args)
     dxs = parse_dx_list(args.dx, cfg.particles.dx)
     solvers = parse_solvers(args.solvers)
+    dispatch = dispatch_from_args(args)
     from dataclasses import replace
 
     from .checks import preflight
@@ -170,7 +177,7 @@ def cmd_sweep(args) -> int:
     out = Path(args.out) if args.out else Path("renders") / f"{cfg.name}-sweep"
     quiet = getattr(args, "quiet", False)
     log = (lambda msg: None) if quiet else (lambda msg: print(msg, file=sys.stderr))
-    result = sweep(cfg, dxs, solvers, out, log=log)
+    result = sweep(cfg, dxs, solvers, out, log=log, dispatch=dispatch)
     if not quiet:
         print(sweep_markdown(result))
         print(f"report: {out / 'sweep.md'}")

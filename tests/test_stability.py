@@ -165,3 +165,22 @@ def test_five_times_the_cfl_limit_is_classified_unstable(tmp_path):
     assert row["verdict"] == "unstable", row
     assert row["criterion"] in ("non_finite", "left_domain", "neighbour_overflow", "density_error", "energy_growth")
     assert json.loads((tmp_path / "5x" / "summary.json").read_text())["status"] == "unstable"
+
+
+def test_battery_on_a_process_pool_assembles_rows_from_the_case_folders(tmp_path):
+    """Two tiny cases on two spawned processes: the refused one is run anyway and its evidence reported,
+    and stability.json is assembled from runs/<case>-<solver>/summary.json."""
+    from taichi_sph.executor import Dispatch
+
+    overrides = ("particles.dx=0.04", "domain.lo=[-0.2, -0.2]", "domain.hi=[0.8, 1.2]", "time.t_end=0.3",
+                 "wcsph.artificial_viscosity.alpha=0", "wcsph.density_diffusion.model=none",
+                 "guards.max_density_error=0.3")
+    cases = (st.Case("tiny_1x", "drop.yaml", overrides),
+             st.Case("tiny_5x", "drop.yaml", overrides, dt_factor=5.0, expect="unstable"))
+    result = st.run_stability(tmp_path, cases=cases, solvers=("wcsph",), with_map=False, log=lambda m: None,
+                              dispatch=Dispatch(jobs=2))
+    rows = {r["case"]: r for r in json.loads((tmp_path / "stability.json").read_text())["cases"]}
+    assert rows["tiny_1x"]["verdict"] == "stable" and rows["tiny_1x"]["as_expected"] is True
+    assert rows["tiny_5x"]["verdict"] == "refused" and rows["tiny_5x"]["if_run_anyway"]["verdict"] == "unstable"
+    assert json.loads((tmp_path / "runs" / "tiny_5x-wcsph" / "summary.json").read_text())["status"] == "unstable"
+    assert [r["case"] for r in result["cases"]] == ["tiny_1x", "tiny_5x"]
