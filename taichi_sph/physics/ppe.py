@@ -147,24 +147,39 @@ class MatrixFreePPE:
             ax += self.coeff[a, k] * (xa - x[NS.neighbors[a, k]])
         return ax
 
+    @ti.func
+    def sum_rhs(self):
+        """|b|^2 and sum b over the unknowns, on one thread: the stopping test is relative to |b|, so a sum
+        whose order varied between runs (parallel float atomics) changed where CG stopped, and ISPH runs
+        were not reproducible."""
+        self.scalars[BB] = 0.0
+        self.scalars[SUM_B] = 0.0
+        ti.loop_config(serialize=True)
+        for a in range(self.n):
+            if self.role[a] == UNKNOWN:
+                self.scalars[BB] += self.rhs[a] * self.rhs[a]
+                self.scalars[SUM_B] += self.rhs[a]
+
     # -- pure Neumann problems (no Dirichlet particle): A has the constants as null space ---------------
     @ti.kernel
     def remove_rhs_mean(self):
-        """Project b onto the range of A (zero mean) and recompute |b|^2."""
+        """Project b onto the range of A (zero mean) and recompute |b|^2 (one thread: see sum_rhs)."""
         mean = self.scalars[SUM_B] / ti.max(self.scalars[N_UNKNOWN], 1.0)
         self.scalars[BB] = 0.0
+        ti.loop_config(serialize=True)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
                 self.rhs[a] -= mean
-                ti.atomic_add(self.scalars[BB], self.rhs[a] * self.rhs[a])
+                self.scalars[BB] += self.rhs[a] * self.rhs[a]
 
     @ti.kernel
     def set_mean(self, level: float):
-        """Fix the free constant: the unknowns' mean pressure becomes `level`."""
+        """Fix the free constant: the unknowns' mean pressure becomes `level` (the sum on one thread)."""
         self.scalars[SUM_P] = 0.0
+        ti.loop_config(serialize=True)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
-                ti.atomic_add(self.scalars[SUM_P], self.p[a])
+                self.scalars[SUM_P] += self.p[a]
         shift = level - self.scalars[SUM_P] / ti.max(self.scalars[N_UNKNOWN], 1.0)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
@@ -193,10 +208,11 @@ class MatrixFreePPE:
                 self.p[a] += self.omega * self.res[a] / self.diag[a]
 
     @ti.kernel
-    def cg_start(self):
+    def cg_start(self, serial: ti.template()):
         """r = b - A p, z = r / diag, d = z, q = A d (all zero outside the unknowns)."""
         for s in ti.static((RR, RZ, PQ)):
             self.scalars[s] = 0.0
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             r = 0.0
             z = 0.0
@@ -209,6 +225,7 @@ class MatrixFreePPE:
             self.z[a] = z
             self.d[a] = z
             self.q[a] = 0.0
+        ti.loop_config(serialize=serial)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
                 q = self.apply(self.z, a)
@@ -355,7 +372,7 @@ class MatrixFreePPE:
         iterations = 0
         residual = math.inf
         if self.solver == "cg":
-            self.cg_start()
+            self.cg_start(bool(self.serial))
             residual = math.sqrt(float(self.scalars[RR])) / norm_b
         elif self.solver == "mgcg":
             self.mg.assemble(bool(self.serial))

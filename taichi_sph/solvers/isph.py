@@ -288,11 +288,10 @@ class ISPHSolver(SolverBase):
                     E.diag[a] = diag
                     E.diag_dirichlet[a] = diag_dirichlet
                     E.rhs[a] = rhs
-                    ti.atomic_add(E.scalars[BB], rhs * rhs)
-                    ti.atomic_add(E.scalars[SUM_B], rhs)
                     ti.atomic_add(E.scalars[N_UNKNOWN], 1.0)
                 else:  # no fluid neighbour, so no other row refers to it: keep its pressure
                     E.role[a] = DIRICHLET
+        E.sum_rhs()
 
     # -- 5. walls and correction ---------------------------------------------------------------
     @ti.kernel
