@@ -11,7 +11,8 @@ positive definite once some particle has a prescribed (Dirichlet) pressure.
 `MatrixFreePPE` stores that system as per-pair coefficients beside the neighbour list and solves it with
 weighted Jacobi, Jacobi-preconditioned conjugate gradients (one Taichi kernel per iteration), or conjugate
 gradients preconditioned by the aggregation multigrid V-cycle of physics/multigrid.py (`mgcg`: iterations
-nearly flat in N, ~15 on the 2D dam break from 10k to 100k particles where Jacobi-CG takes 163-570); every
+nearly flat in N: 9 / 11 / 15 a step on the 2D dam break at 10k / 100k / 1M particles, where Jacobi-CG
+takes 163 / 542 / -); every
 scalar of the iteration stays on the device and the host reads one residual norm every few iterations.
 """
 
@@ -342,8 +343,8 @@ class MatrixFreePPE:
             z = M r                                                             (r.z reduced)
             beta = rz_new / rz;  d = z + beta d;  q = A z + beta q              (d.q reduced)
 
-        Three kernels (the particle ends of the V-cycle ride with CG's vector updates) and two per cell
-        level; no host read-back.
+        Two particle kernels (the particle ends of the V-cycle ride with CG's vector updates), the cell levels'
+        kernels (one for all the small levels) and no host read-back.
         """
         self.mgcg_update(serial)
         self.mg.coarse_cycle(serial)
