@@ -233,6 +233,24 @@ class MatrixFreePPE:
                 self.q[a] = q
                 ti.atomic_add(self.scalars[PQ], self.d[a] * q)
 
+    @ti.func
+    def step_length(self):
+        """alpha = rz / d.q (0 once d.q vanished); clears the |r|^2 and r.z_new the update pass reduces."""
+        alpha = 0.0
+        if self.scalars[PQ] > 0.0:
+            alpha = self.scalars[RZ] / self.scalars[PQ]
+        self.scalars[RR] = 0.0
+        self.scalars[RZ_NEW] = 0.0
+        return alpha
+
+    @ti.func
+    def advance(self, a, alpha):
+        """p_a += alpha d_a, r_a -= alpha q_a; returns the new r_a."""
+        self.p[a] += alpha * self.d[a]
+        r = self.res[a] - alpha * self.q[a]
+        self.res[a] = r
+        return r
+
     @ti.kernel
     def cg_iteration(self, serial: ti.template()):
         """One Jacobi-preconditioned CG iteration in two parallel passes (q = A d kept by the recurrence
@@ -241,18 +259,12 @@ class MatrixFreePPE:
             alpha = rz / d.q;  p += alpha d;  r -= alpha q;  z = r / diag      (|r|^2, r.z reduced)
             beta = rz_new / rz;  d = z + beta d;  q = A z + beta q             (d.q reduced)
         """
-        alpha = 0.0
-        if self.scalars[PQ] > 0.0:
-            alpha = self.scalars[RZ] / self.scalars[PQ]
-        self.scalars[RR] = 0.0
-        self.scalars[RZ_NEW] = 0.0
+        alpha = self.step_length()
         ti.loop_config(serialize=serial)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
-                self.p[a] += alpha * self.d[a]
-                r = self.res[a] - alpha * self.q[a]
+                r = self.advance(a, alpha)
                 z = r / self.diag[a]
-                self.res[a] = r
                 self.z[a] = z
                 ti.atomic_add(self.scalars[RR], r * r)
                 ti.atomic_add(self.scalars[RZ_NEW], r * z)
@@ -297,17 +309,11 @@ class MatrixFreePPE:
     @ti.kernel
     def mgcg_update(self, serial: ti.template()):
         """alpha = rz / d.q;  p += alpha d;  r -= alpha q  (|r|^2 reduced);  z0 = omega r / diag; restriction."""
-        alpha = 0.0
-        if self.scalars[PQ] > 0.0:
-            alpha = self.scalars[RZ] / self.scalars[PQ]
-        self.scalars[RR] = 0.0
-        self.scalars[RZ_NEW] = 0.0
+        alpha = self.step_length()
         ti.loop_config(serialize=serial)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
-                self.p[a] += alpha * self.d[a]
-                r = self.res[a] - alpha * self.q[a]
-                self.res[a] = r
+                r = self.advance(a, alpha)
                 self.z0[a] = self.mg.omega * r / self.diag[a]
                 ti.atomic_add(self.scalars[RR], r * r)
         self.mg.restrict_particles(serial)
