@@ -10,7 +10,8 @@ and a sphere is counted row by row. The bytes follow what the solvers allocate:
   continuity and delta-SPH rates; the shifting vector; ISPH's PPE arrays (role, rhs, diag, residual,
   CG vectors and one coefficient per neighbour-list slot) and wall-face planes; the renderer's two
   f32 vectors;
-- per cell: the cell-start and cell-count arrays (i32);
+- per cell: the cell-start and cell-count arrays (i32), and with `mgcg` its cell levels' stencils and
+  vectors (`multigrid_bytes`);
 - on the host: the numpy particle arrays the run keeps (float64), the lattice temporaries of the
   largest body while particles are built (a wall box's lattice spans the whole tank it encloses),
   the copies taken at output times (state, sort order, snapshot encoding) and, beside them, a

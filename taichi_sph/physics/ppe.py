@@ -130,9 +130,8 @@ class MatrixFreePPE:
         self.pinned = False  # the system being solved has no Dirichlet particle
         if solver == "mgcg":
             self.z0 = ti.field(float, n)  # the V-cycle's pre-smoothed particle iterate
-            mgs = multigrid
-            self.mg = CellMultigrid(self, mgs.smoother_omega, mgs.coarse_scale, mgs.coarsest_sweeps, mgs.cell_sweeps, UNKNOWN,
-                                    (RZ_NEW, SUM_Z, SUM_R))
+            self.mg = CellMultigrid(self, multigrid.smoother_omega, multigrid.coarse_scale, multigrid.coarsest_sweeps,
+                                    multigrid.cell_sweeps, UNKNOWN, (RZ_NEW, SUM_Z, SUM_R))
         self.scalars = ti.field(float, 11)
         # CPU: whether the iteration loops run on one thread (see `_choose_schedule`); elsewhere parallel
         self.serial: bool | None = None if ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64) else False
