@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 from .errors import UsageError
+from .instrument import count_host_traffic
 
 SCENES = {2: "dam_break_2d.yaml", 3: "dam_break_3d.yaml"}
 # The 2D size sweep keeps h = 1.3 dx (PySPH's and DualSPHysics' dam-break choice, ~20 neighbours), the
@@ -73,25 +74,42 @@ def worker(spec: dict) -> dict:
     def marks():  # simulated time, PPE seconds and solves so far: what the timed steps are measured from
         return solver.t, getattr(solver, "ppe_seconds", 0.0), len(getattr(solver, "iterations", []))
 
+    guard_every = cfg.guards.check_every
+
+    def run_steps(n_steps: int, t_end: float) -> int:
+        """Step as `taichi-sph run` does between outputs: batches of guard_every steps (which a solver
+        with a device-resident loop runs without read-backs), the guard's stats read after each."""
+        done = 0
+        while done < n_steps and solver.t < t_end - 1e-12:
+            dts = solver.advance(min(guard_every, n_steps - done), math.inf, t_end)
+            if not dts:
+                break
+            done += len(dts)
+            solver.read_stats()
+        return done
+
     t_sim0, ppe0, its0 = marks()
     if spec.get("t_end"):
-        t1 = time.perf_counter()
-        while solver.t < spec["t_end"]:
-            solver.step()
-        stepping = time.perf_counter() - t1
+        with count_host_traffic() as traffic:
+            t1 = time.perf_counter()
+            run_steps(10 ** 9, spec["t_end"])
+            stepping = time.perf_counter() - t1
         out.update(steps=solver.step_count, stepping_s=stepping, t=solver.t)
+        timed_steps = max(solver.step_count - 1, 1)
     else:
         warmup = 0  # time the steady state: after the loop-schedule probe
         while warmup < 3 or (schedule is not None and schedule.deciding):
             solver.step()
             warmup += 1
         t_sim0, ppe0, its0 = marks()
-        t1 = time.perf_counter()
-        for _ in range(spec["steps"]):
-            solver.step()
-        stepping = time.perf_counter() - t1
-        out.update(steps=spec["steps"], stepping_s=stepping)
-    n_steps = out["steps"] if spec.get("t_end") else spec["steps"]
+        with count_host_traffic() as traffic:
+            t1 = time.perf_counter()
+            timed_steps = run_steps(spec["steps"], math.inf)
+            stepping = time.perf_counter() - t1
+        out.update(steps=timed_steps, stepping_s=stepping)
+    out["launches_per_step"] = traffic.launches / max(timed_steps, 1)
+    out["readbacks_per_step"] = traffic.readbacks / max(timed_steps, 1)
+    n_steps = out["steps"]
     per_step = stepping / max(n_steps, 1)
     out["simulated_s"] = solver.t - t_sim0
     # wall seconds per simulated second at the step the developed flow takes: CFL h / (c + reference
@@ -178,7 +196,8 @@ def cmd_bench(args) -> int:
             print(f"\nPySPH dam_break_2d scene (dx 0.03, to t = 0.7 s): {res.get('n_fluid')} fluid + {res.get('n_wall')} wall, "
                   f"{res.get('steps')} steps, stepping {res.get('stepping_s', float('nan')):.2f} s "
                   f"({'PySPH SISPH to T = 3 here: 15.9 s' if args.solver == 'isph' else 'PySPH 1.0b2 WCSPH here: 9.6 s'}), "
-                  f"{_fmt_rate(res.get('particle_steps_per_s'))} M particle-steps/s, loops {res.get('loops', '-')}; "
+                  f"{_fmt_rate(res.get('particle_steps_per_s'))} M particle-steps/s, loops {res.get('loops', '-')}, "
+                  f"{res.get('launches_per_step', math.nan):.2f} launches and {res.get('readbacks_per_step', math.nan):.2f} read-backs per step; "
                   f"cold start to first step {res.get('time_to_first_step_s', float('nan')):.1f} s, "
                   f"warm {warm.get('time_to_first_step_s', float('nan')):.1f} s")
     if args.json:
@@ -189,14 +208,15 @@ def cmd_bench(args) -> int:
 def _print_row(row: dict, header: bool) -> None:
     if header:
         print(f"{'dim':>3} {'fluid':>9} {'wall':>8} {'Mpart-steps/s':>13} {'fluid':>7} {'wall':>7} {'ms/step':>8} "
-              f"{'compile cold':>12} {'warm':>6} {'peak MiB':>9} {'loops':>8}")
+              f"{'compile cold':>12} {'warm':>6} {'peak MiB':>9} {'loops':>8} {'launch/step':>11} {'reads/step':>10}")
     if "error" in row:
         print(f"{row['dim']:>3} {row['target']:>9}: failed: {row['error']}")
         return
     print(f"{row['dim']:>3} {row['n_fluid']:>9} {row['n_wall']:>8} {_fmt_rate(row['particle_steps_per_s']):>13} "
           f"{_fmt_rate(row['fluid_particle_steps_per_s']):>7} {_fmt_rate(row['wall_particle_steps_per_s']):>7} "
           f"{row['step_ms']:>8.2f} {row['compile_s']:>11.1f}s {row.get('compile_warm_s') or math.nan:>5.1f}s "
-          f"{row['peak_rss_mib']:>9.0f} {row.get('loops', '-'):>8}")
+          f"{row['peak_rss_mib']:>9.0f} {row.get('loops', '-'):>8} {row.get('launches_per_step', math.nan):>11.2f} "
+          f"{row.get('readbacks_per_step', math.nan):>10.2f}")
     if row.get("ppe_solver"):
         line = (f"    PPE {row['ppe_solver']}: {row['ppe_iterations_mean']:.1f} iterations/step, "
                 f"{row['ppe_ms_per_iteration']:.3f} ms/iteration, {100 * row['ppe_share']:.0f}% of the step")

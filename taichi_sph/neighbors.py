@@ -36,6 +36,11 @@ def _is_zero(offset) -> bool:
     return all(int(offset[d]) == 0 for d in range(offset.n))
 
 
+def _present(value) -> bool:
+    """`value is not None`, callable inside ti.static (Taichi scope has no `is not`)."""
+    return value is not None
+
+
 # Upper bound on the number of cells (two i32 arrays of this size are allocated).
 MAX_CELLS = 1 << 28
 
@@ -128,6 +133,10 @@ class NeighborSearch:
         self._unsorted_cell = ti.field(ti.i32, self.n)
         self._slot_in_cell = ti.field(ti.i32, self.n)
         self._stats = ti.field(ti.i32, 2)  # [max neighbour count, escaped particles]
+        # 1: the device-resident step loop's build (`_Binding.gated_build`) runs; 0: it is skipped.
+        # A solver sets it on the device when its Verlet skin is used up, so that the host never has
+        # to read anything back to decide a rebuild.
+        self.gate = ti.field(ti.i32, ())
         self._stats_cache: tuple[int, int] | None = (0, 0)
 
         # Prefix sum. On CUDA: ti.algorithms.PrefixSumExecutor (warp-shuffle scan; it raises on
@@ -156,6 +165,18 @@ class NeighborSearch:
         is seen; on the CPU and Vulkan the whole build is then a single launch. `serial`: every loop on
         one thread (a solver's choice for small scenes on the CPU; the lists are the same).
         """
+        binding = self.binding(x, fields)
+        if self._use_executor:
+            self._assign_cells(x)
+            self._prefix_sum()
+            binding.sort_permute_find(serial)
+        else:
+            binding.build_all(serial)
+        self._stats_cache = None
+
+    def binding(self, x, fields: Sequence = ()) -> "_Binding":
+        """The build kernels for this (x, fields) set (compiled on first use). A solver's device-resident
+        step calls `binding.build_passes(serial, self.gate)` inside its own kernels."""
         key = (id(x),) + tuple(id(f) for f in fields)
         binding = self._bindings.get(key)
         if binding is None:
@@ -167,12 +188,10 @@ class NeighborSearch:
             for f in fields:
                 self._check_field(f, "a field to permute")
             binding = self._bindings[key] = _Binding(self, x, tuple(fields))
-        if self._use_executor:
-            self._assign_cells(x)
-            self._prefix_sum()
-            binding.sort_permute_find(serial)
-        else:
-            binding.build_all(serial)
+        return binding
+
+    def invalidate_stats(self) -> None:
+        """Forget the cached max count / escaped numbers (a device-side build may have changed them)."""
         self._stats_cache = None
 
     def max_count(self) -> int:
@@ -253,6 +272,14 @@ class NeighborSearch:
     # ------------------------------------------------------------------ kernels
 
     @ti.func
+    def _reach(self, count, gate: ti.template()):
+        """A loop's length: `count`, or 0 while `gate` (an i32 field of shape (), or None) holds 0."""
+        r = count
+        if ti.static(_present(gate)):
+            r = count * gate[None]
+        return r
+
+    @ti.func
     def _cell_coord(self, xi):
         c = ti.Vector.zero(ti.i32, self.dim)
         for d in ti.static(range(self.dim)):
@@ -283,14 +310,16 @@ class NeighborSearch:
 
     # Each pass takes `serial` (a compile-time flag): all its loops then run on one thread.
     @ti.func
-    def _assign_cells_pass(self, x: ti.template(), serial: ti.template()):
-        self._stats[0] = 0
-        self._stats[1] = 0
+    def _assign_cells_pass(self, x: ti.template(), serial: ti.template(), gate: ti.template() = None):
+        ti.loop_config(serialize=True)
+        for _ in range(self._reach(1, gate)):
+            self._stats[0] = 0
+            self._stats[1] = 0
         ti.loop_config(serialize=serial)
-        for c in range(self.total_cells):
+        for c in range(self._reach(self.total_cells, gate)):
             self._cell_count[c] = 0
         ti.loop_config(serialize=serial)
-        for i in range(self.n):
+        for i in range(self._reach(self.n, gate)):
             xi = self.wrap(x[i])
             if ti.static(self._any_periodic):
                 x[i] = xi
@@ -309,23 +338,23 @@ class NeighborSearch:
             self._slot_in_cell[i] = ti.atomic_add(self._cell_count[c], 1)
 
     @ti.func
-    def _scan_pass(self, serial: ti.template()):
+    def _scan_pass(self, serial: ti.template(), gate: ti.template() = None):
         block = ti.static(self._scan_block)
         ti.loop_config(serialize=serial)
-        for b in range(self._scan_blocks):
+        for b in range(self._reach(self._scan_blocks, gate)):
             s = 0
             for c in range(b * block, ti.min((b + 1) * block, self.total_cells)):
                 s += self._cell_count[c]
             self._block_sum[b] = s
         ti.loop_config(serialize=True)
-        for b in range(self._scan_blocks):  # serial exclusive scan over the block sums
+        for b in range(self._reach(self._scan_blocks, gate)):  # serial exclusive scan over the block sums
             s = self._block_sum[b]
             if b == 0:
                 self.cell_start[self.total_cells] = 0
             self._block_sum[b] = self.cell_start[self.total_cells]
             self.cell_start[self.total_cells] += s
         ti.loop_config(serialize=serial)
-        for b in range(self._scan_blocks):
+        for b in range(self._reach(self._scan_blocks, gate)):
             running = self._block_sum[b]
             for c in range(b * block, ti.min((b + 1) * block, self.total_cells)):
                 self.cell_start[c] = running
@@ -338,15 +367,15 @@ class NeighborSearch:
         self.cell_start[self.total_cells] = inclusive[self.total_cells - 1]
 
     @ti.func
-    def _sort_pass(self, serial: ti.template()):
+    def _sort_pass(self, serial: ti.template(), gate: ti.template() = None):
         ti.loop_config(serialize=serial)
-        for i in range(self.n):
+        for i in range(self._reach(self.n, gate)):
             c = self._unsorted_cell[i]
             self.order[self.cell_start[c] + self._slot_in_cell[i]] = i
         # slots inside a cell were handed out by atomics in thread order: sort them by previous
         # index (insertion sort; cells hold a handful of particles and are mostly sorted already)
         ti.loop_config(serialize=serial)
-        for c in range(self.total_cells):
+        for c in range(self._reach(self.total_cells, gate)):
             begin = self.cell_start[c]
             end = self.cell_start[c + 1]
             for k in range(begin + 1, end):
@@ -357,7 +386,7 @@ class NeighborSearch:
                     m -= 1
                 self.order[m] = v
         ti.loop_config(serialize=serial)
-        for k in range(self.n):
+        for k in range(self._reach(self.n, gate)):
             self.cell_id[k] = self._unsorted_cell[self.order[k]]
 
     @ti.func
@@ -454,9 +483,9 @@ class NeighborSearch:
         return found
 
     @ti.func
-    def _find_pass(self, x: ti.template(), serial: ti.template()):
+    def _find_pass(self, x: ti.template(), serial: ti.template(), gate: ti.template() = None):
         ti.loop_config(serialize=serial)
-        for i in range(self.n):
+        for i in range(self._reach(self.n, gate)):
             found = self._gather_neighbors(x, i)
             self.count[i] = ti.min(found, self.max_neighbors)
             ti.atomic_max(self._stats[0], found)
@@ -479,16 +508,16 @@ class _Binding:
         self.other = tuple(k for k, f in enumerate(self.fields) if len(f.shape) != 1)
 
     @ti.func
-    def permute_pass(self, serial: ti.template()):
+    def permute_pass(self, serial: ti.template(), gate: ti.template() = None):
         """Apply `order` to x and every bound field (gather into scratch, copy back)."""
         ns = self.ns
         ti.loop_config(serialize=serial)
-        for i in range(ns.n):
+        for i in range(ns._reach(ns.n, gate)):
             j = ns.order[i]
             for k in ti.static(self.per_particle):
                 self.tmps[k][i] = self.fields[k][j]
         ti.loop_config(serialize=serial)
-        for i in range(ns.n):
+        for i in range(ns._reach(ns.n, gate)):
             for k in ti.static(self.per_particle):
                 self.fields[k][i] = self.tmps[k][i]
         for k in ti.static(self.other):
@@ -512,6 +541,18 @@ class _Binding:
         ns._sort_pass(serial)
         self.permute_pass(serial)
         ns._find_pass(self.x, serial)
+
+    @ti.func
+    def build_passes(self, serial: ti.template(), gate: ti.template()):
+        """The whole build as passes for a solver's own kernels; every loop is empty while gate[None] == 0.
+        (Always the blocked scan: on CUDA the warp-scan executor would be a launch of its own.) Fields with
+        more than one index per particle (`other`) are not gated: the caller binds per-particle fields only."""
+        ns = self.ns
+        ns._assign_cells_pass(self.x, serial, gate)
+        ns._scan_pass(serial, gate)
+        ns._sort_pass(serial, gate)
+        self.permute_pass(serial, gate)
+        ns._find_pass(self.x, serial, gate)
 
     @ti.kernel
     def sort_permute_find(self, serial: ti.template()):

@@ -29,6 +29,7 @@ def init_taichi(arch: str = "cpu", precision: str = "f32", *, force: bool = Fals
     `auto` and `gpu` fall back to the CPU when no GPU backend is found.
     """
     global _current
+    arch = test_arch_override(arch)
     if arch not in _ARCHES:
         raise SPHError(f"unknown arch '{arch}'; allowed: {', '.join(ARCH_NAMES)}")
     if precision not in PRECISIONS:
@@ -51,6 +52,17 @@ def init_taichi(arch: str = "cpu", precision: str = "f32", *, force: bool = Fals
                 f"{ti.lang.impl.current_cfg().arch.name}); use --arch cpu or install the {arch} driver"
             )
     _current = key
+
+
+def test_arch_override(arch: str) -> str:
+    """`TAICHI_SPH_TEST_ARCH=cuda pytest` runs the test suite on a GPU: every request for the CPU (the
+    tests' and the configs' default) is then served by that arch, in subprocesses too. Unset: `arch`."""
+    override = os.environ.get("TAICHI_SPH_TEST_ARCH", "").strip()
+    if override and arch == "cpu":
+        if override not in _ARCHES:
+            raise SPHError(f"TAICHI_SPH_TEST_ARCH={override!r}: allowed {', '.join(ARCH_NAMES)}")
+        return override
+    return arch
 
 
 def current_arch_name() -> str:

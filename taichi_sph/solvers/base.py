@@ -14,6 +14,7 @@ from ..neighbors import NeighborSearch
 from ..particles import ParticleFields, np_float
 from ..physics.eos import tait_density, tait_pressure
 from ..physics.walls import adami_wall_pressure, adami_wall_velocity
+from .clock import DeviceClock
 
 
 def _is_plain(value) -> bool:
@@ -128,6 +129,9 @@ class SolverBase:
         self.step_count = 0
         self.last_dt_limit = ""
         self.dt_cap = math.inf  # the run loop caps the step so that t lands on t_end
+        # t, dt and `live` on the device: the step passes loop over `live_n()` particles, so that a step a
+        # device-resident loop does not take is empty (solvers stepping from the host leave live at 1)
+        self.clock = DeviceClock()
 
     # -- neighbours ---------------------------------------------------------------------
     def rebuild_neighbors(self, serial: bool = False) -> None:
@@ -143,6 +147,11 @@ class SolverBase:
         if ti.static(self.skin > 0.0):
             d = self.nsearch.pair_vector(self.particles.x[a], self.x_ref[a]).norm()
         return d
+
+    @ti.func
+    def live_n(self):
+        """The particle loops' length: n while this step runs, 0 for a step a device loop skips."""
+        return self.n * self.clock.live[None]
 
     # -- shared passes ---------------------------------------------------------------------
     @ti.kernel
@@ -172,7 +181,7 @@ class SolverBase:
         P = self.particles
         NS = self.nsearch
         ti.loop_config(serialize=serial)
-        for a in range(self.n):
+        for a in range(self.live_n()):
             if P.kind[a] == FLUID:
                 xa = P.x[a]
                 rho = P.mass[a] * self.kernel.w0
@@ -195,7 +204,7 @@ class SolverBase:
         """Tait pressure for every fluid particle."""
         P = self.particles
         ti.loop_config(serialize=serial)
-        for a in range(self.n):
+        for a in range(self.live_n()):
             if P.kind[a] == FLUID:
                 P.p[a] = self.tait(P.rho[a])
 
@@ -205,7 +214,7 @@ class SolverBase:
         P = self.particles
         NS = self.nsearch
         ti.loop_config(serialize=serial)
-        for a in range(self.n):
+        for a in range(self.live_n()):
             if P.kind[a] == WALL:
                 xa = P.x[a]
                 sum_w = 0.0
@@ -252,6 +261,13 @@ class SolverBase:
         ti.loop_config(serialize=True)
         for s in range(5):
             out[s] = self.stats[s]
+
+    @ti.func
+    def reset_stats_live(self):
+        """reset_stats, unless this step is skipped (the stats then keep describing the current state)."""
+        ti.loop_config(serialize=True)
+        for s in range(5 * self.clock.live[None]):
+            self.stats[s] = 0.0
 
     @ti.func
     def reset_stats(self):
@@ -338,6 +354,19 @@ class SolverBase:
 
     def step(self) -> float:
         raise NotImplementedError
+
+    def advance(self, max_steps: int, t_stop: float = math.inf, t_end: float = math.inf) -> list[float]:
+        """Up to `max_steps` steps while t < t_stop (the first step always runs) and t < t_end, the last
+        step cut to land on t_end; returns the dts taken. Here: one host-driven `step()` at a time
+        (solvers with a device-resident loop override it)."""
+        dts: list[float] = []
+        for i in range(max_steps):
+            if self.t >= t_end - 1e-12 or (i > 0 and self.t >= t_stop - 1e-12):
+                break
+            self.dt_cap = t_end - self.t
+            dts.append(self.step())
+        self.dt_cap = math.inf
+        return dts
 
     def extra_summary(self) -> dict:
         """Solver-specific summary entries (ISPH: ppe)."""

@@ -27,10 +27,20 @@ class ParticleShifting:
 
     @ti.kernel
     def compute(self, dt: float):
+        self.compute_pass(dt, False)
+
+    @ti.kernel
+    def move(self):
+        self.move_pass(False)
+
+    @ti.func
+    def compute_pass(self, dt, serial: ti.template()):
+        """shift_a for every fluid particle (the pass a solver's own kernels call)."""
         S = self.solver
         P = S.particles
         NS = S.nsearch
-        for a in range(S.n):
+        ti.loop_config(serialize=serial)
+        for a in range(S.live_n()):
             self.shift[a] = ti.Vector.zero(float, S.dim)
             if P.kind[a] == FLUID:
                 xa = P.x[a]
@@ -54,11 +64,13 @@ class ParticleShifting:
                     dr *= self.max_shift / length
                 self.shift[a] = dr
 
-    @ti.kernel
-    def move(self):
+    @ti.func
+    def move_pass(self, serial: ti.template()):
+        """x_a += shift_a (fluid)."""
         S = self.solver
         P = S.particles
-        for a in range(S.n):
+        ti.loop_config(serialize=serial)
+        for a in range(S.live_n()):
             if P.kind[a] == FLUID:
                 P.x[a] += self.shift[a]
 

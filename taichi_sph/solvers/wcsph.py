@@ -1,20 +1,29 @@
 """Weakly-compressible SPH: neighbours -> density -> Tait EOS -> walls -> forces -> integrate.
 
 Terms a scene does not use are compiled out with `ti.static` from the frozen feature set.
+
+The step loop stays on the device (`advance`): dt (the CFL, force, viscous and dt_max limits), t, the
+gravity ramp and the Verlet-skin rebuild test are evaluated in the step's own kernel from the stats the
+force pass left in a device field, so the host launches steps without reading anything back. One
+step is one kernel (its passes run in order, each loop parallel); on the CPU, when the loop schedule
+chose one thread, a whole batch of steps is one kernel (`advance_serial`). The host reads t, the steps'
+dts and the stats once per `advance` call: at output, guard, frame and checkpoint times.
 """
 
 
+import math
 import time
 
 import numpy as np
 import taichi as ti
 
-from ..config import Config
+from ..config import AUTO, Config
 from ..geometry import FLUID, WALL, ParticleArrays
 from ..physics.density import continuity_rate, hydrostatic_density_difference, molteni_diffusion
 from ..physics.momentum import (monaghan_tensile_correction, monaghan_viscosity, morris_laminar_viscosity,
                                 symmetric_pressure_gradient)
 from .base import LoopSchedule, SolverBase
+from .clock import DT_LIMITS, DeviceClock
 from .shifting import ParticleShifting
 
 
@@ -39,6 +48,16 @@ class WCSPHSolver(SolverBase):
         self.w_dx = float(self.kernel.w_np(np.array([self.dx]))[0])
         self.shifting = ParticleShifting(self, cfg.shifting.coefficient) if f.shifting else None
         self.schedule = LoopSchedule()
+        # constants of the device-side dt rule (choose_dt's)
+        tc = cfg.time
+        self.fixed_dt = 0.0 if tc.dt == AUTO else float(tc.dt)
+        self.cfl = float(tc.cfl)
+        self.dt_max = 0.0 if tc.dt_max is None else float(tc.dt_max)
+        self.gravity_ramp = float(cfg.gravity_ramp) if f.gravity else 0.0
+        self.gravity_full = tuple(float(g) for g in cfg.gravity_vector)
+        self.shift_cap = self.shifting.max_shift if self.shifting is not None else 0.0
+        self.clock_host = np.zeros(DeviceClock.HEADER + self.clock.capacity, dtype=np.float64)
+        self.binding = None  # the neighbour build bound to the persistent fields (made in prepare)
 
     # -- the pair loop ------------------------------------------------------------------
     @ti.kernel
@@ -46,14 +65,19 @@ class WCSPHSolver(SolverBase):
         """One launch: (summation density + Tait EOS), Adami walls, forces + delta-SPH + stats (copied to
         stats_out); `serial`: every loop on one thread (see LoopSchedule).
         With continuity density the pressure is already current: the drift applies the EOS."""
-        self.reset_stats()
+        self.rates_passes(serial)
+        self.export_stats(stats_out)
+
+    @ti.func
+    def rates_passes(self, serial: ti.template()):
+        """(summation density + Tait EOS), Adami walls, forces + delta-SPH + stats, in order."""
+        self.reset_stats_live()
         if ti.static(self.features.density == "summation"):
             self.summation_density_pass(serial)
             self.tait_pass(serial)
         if ti.static(self.features.walls):
             self.adami_wall_pass(serial)
         self.wcsph_forces_pass(serial)
-        self.export_stats(stats_out)
 
     @ti.func
     def wcsph_forces_pass(self, serial: ti.template()):
@@ -61,7 +85,7 @@ class WCSPHSolver(SolverBase):
         P = self.particles
         NS = self.nsearch
         ti.loop_config(serialize=serial)
-        for a in range(self.n):
+        for a in range(self.live_n()):
             if P.kind[a] == FLUID:
                 xa, va, rho_a, p_a = P.x[a], P.v[a], P.rho[a], P.p[a]
                 acc = ti.Vector.zero(float, self.dim)
@@ -106,58 +130,44 @@ class WCSPHSolver(SolverBase):
                 self.accumulate_stats(a)
 
     @ti.func
-    def continuity_pass(self, dt_kick: float, serial: ti.template()):
-        """drho_a = sum_b m_b (v_a - v_b) . grad_a W_ab with the kicked velocities v + dt_kick a (formed
-        here; the drift stores them), so that density (a position-like variable) drifts with the new
-        velocity: the scheme stays symplectic for sound waves."""
+    def continuity_pass(self, serial: ti.template()):
+        """drho_a = sum_b m_b (v_a - v_b) . grad_a W_ab, run after the kick: density (a position-like
+        variable) drifts with the new velocity, so the scheme stays symplectic for sound waves. (The kick
+        is its own loop: forming v + dt a here for every pair cost ~40% of this pass on PySPH's scene.)"""
         P = self.particles
         NS = self.nsearch
         ti.loop_config(serialize=serial)
-        for a in range(self.n):
+        for a in range(self.live_n()):
             if P.kind[a] == FLUID:
                 xa = P.x[a]
-                va = P.v[a] + dt_kick * P.acc[a]
+                va = P.v[a]
                 drho = 0.0
                 for k in range(NS.count[a]):
                     b = NS.neighbors[a, k]
                     r_ab = NS.pair_vector(xa, P.x[b])
                     r = r_ab.norm()
-                    vb = P.v[b]
-                    if P.kind[b] == FLUID:
-                        vb += dt_kick * P.acc[b]
-                    drho += continuity_rate(P.mass[b], va - vb, self.kernel.grad_w(r_ab, r))
+                    drho += continuity_rate(P.mass[b], va - P.v[b], self.kernel.grad_w(r_ab, r))
                 self.drho[a] = drho
-
-    @ti.kernel
-    def kick(self, dt: float, serial: ti.template()):
-        self.kick_pass(dt, serial)
-
-    @ti.kernel
-    def kick_continuity_drift(self, dt_kick: float, dt: float, serial: ti.template()):
-        """One launch: drho with the kicked v (continuity); then per particle v += dt_kick a, x, rho += dt (...).
-        (A separate kick loop cost a thread-pool round per step.)"""
-        if ti.static(self.features.density == "continuity"):
-            self.continuity_pass(dt_kick, serial)
-        self.drift_pass(dt_kick, dt, serial)
 
     @ti.func
     def kick_pass(self, dt: float, serial: ti.template()):
         """v += dt a (fluid)."""
         P = self.particles
         ti.loop_config(serialize=serial)
-        for a in range(self.n):
+        for a in range(self.live_n()):
             if P.kind[a] == FLUID:
                 P.v[a] += dt * P.acc[a]
 
     @ti.func
-    def drift_pass(self, dt_kick: float, dt: float, serial: ti.template()):
-        """v += dt_kick a; x += dt v; rho += dt (drho + delta-SPH diffusion) for continuity density;
-        reflect at faces."""
+    def drift_pass(self, dt_kick: float, dt: float, kick: ti.template(), serial: ti.template()):
+        """(v += dt_kick a, when `kick`); x += dt v; rho += dt (drho + delta-SPH diffusion) for continuity
+        density; reflect at faces."""
         P = self.particles
         ti.loop_config(serialize=serial)
-        for a in range(self.n):
+        for a in range(self.live_n()):
             if P.kind[a] == FLUID:
-                P.v[a] += dt_kick * P.acc[a]
+                if ti.static(kick):
+                    P.v[a] += dt_kick * P.acc[a]
                 P.x[a] += dt * P.v[a]
                 if ti.static(self.features.density == "continuity"):
                     rate = self.drho[a]
@@ -168,69 +178,196 @@ class WCSPHSolver(SolverBase):
                 if ti.static(self.features.reflecting):
                     self.reflect(a)
 
-    # -- one step ---------------------------------------------------------------------------
-    def needs_rebuild(self, dt: float) -> bool:
-        """Whether a drift by dt may take a particle skin/2 from where the lists were built:
-        bound = displacement at the last force evaluation + dt (|v|max + dt |a|max) (+ the shifting cap)."""
-        if self.x_ref is None:
-            return True
-        s = self.stats_now
-        bound = s["max_displacement"] + dt * (s["max_speed"] + dt * s["max_acc"])
-        if self.shifting is not None:
-            bound += self.shifting.max_shift
-        return 2.0 * bound >= self.skin
+    # -- the device-resident step ------------------------------------------------------------
+    @ti.func
+    def dt_rule(self):
+        """dt = min(CFL h / (c0 + |v|max), CFL sqrt(h / |a|max), 0.125 h^2 / nu, dt_max), or the fixed dt,
+        from the stats of the last force pass (the host's `choose_dt`); clock.limit names the winner."""
+        s = ti.static(self.stats)
+        dt = 0.0
+        limit = 4
+        if ti.static(self.fixed_dt > 0.0):
+            dt = self.fixed_dt
+        else:
+            dt = self.cfl * self.h / (self.c0 + s[0])
+            limit = 0
+            if s[1] > 0.0:
+                dt_force = self.cfl * ti.sqrt(self.h / s[1])
+                if dt_force < dt:
+                    dt = dt_force
+                    limit = 1
+            if ti.static(self.nu > 0.0):
+                dt_visc = 0.125 * self.h * self.h / self.nu
+                if dt_visc < dt:
+                    dt = dt_visc
+                    limit = 2
+            if ti.static(self.dt_max > 0.0):
+                if self.dt_max < dt:
+                    dt = self.dt_max
+                    limit = 3
+        self.clock.limit[None] = limit
+        return dt
+
+    @ti.func
+    def skin_used_up(self, dt):
+        """1 when a drift by dt may take a particle skin/2 from where the lists were built: bound =
+        displacement at the last force pass + dt (|v|max + dt |a|max) (+ the shifting cap)."""
+        rebuild = 1
+        if ti.static(self.skin > 0.0):
+            s = ti.static(self.stats)
+            bound = s[4] + dt * (s[0] + dt * s[1]) + self.shift_cap
+            rebuild = 0
+            if 2.0 * bound >= self.skin:
+                rebuild = 1
+        return rebuild
+
+    @ti.func
+    def ramped_gravity(self, t):
+        """g(t) = g (1 - cos(pi t / t_ramp)) / 2 for t < t_ramp (update_body_force on the device)."""
+        if ti.static(self.gravity_ramp > 0.0):
+            factor = 0.5 * (1.0 - ti.cos(math.pi * ti.min(t / self.gravity_ramp, 1.0)))
+            self.gravity[None] = factor * ti.Vector(self.gravity_full, dt=float)
+
+    @ti.func
+    def open_step_pass(self, i, t_stop, t_end):
+        """Whether the call's step i runs; its dt, the body force at t + dt, and whether lists are rebuilt."""
+        C = self.clock
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            rebuild = 0
+            if C.open_step(i, t_stop, t_end):
+                dt = C.set_dt(self.dt_rule(), t_end)
+                self.ramped_gravity(ti.cast(C.t[None] + C.dt[None], float))
+                rebuild = self.skin_used_up(dt)
+            self.nsearch.gate[None] = rebuild
+
+    @ti.func
+    def rebuild_pass(self, serial: ti.template()):
+        """The neighbour build, x_ref and the build count, all empty unless the skin is used up."""
+        gate = ti.static(self.nsearch.gate)
+        self.binding.build_passes(serial, gate)
+        if ti.static(self.skin > 0.0):
+            ti.loop_config(serialize=serial)
+            for a in range(self.n * gate[None]):
+                self.x_ref[a] = self.particles.x[a]
+        ti.loop_config(serialize=True)
+        for _ in range(gate[None]):
+            self.clock.builds[None] += 1
+
+    @ti.func
+    def step_passes(self, i, t_stop, t_end, serial: ti.template()):
+        """One step (skipped when the clock says so).
+
+        symplectic_euler: v^{n+1} = v^n + dt a^n; rho^{n+1} = rho^n + dt drho(v^{n+1}); x^{n+1} = x^n + dt v^{n+1}.
+        leapfrog (kick-drift-kick): half kick with a^n, drift x and rho with v^{n+1/2}, forces at n+1, half kick.
+        Forces of the new state end the step (their stats choose the next dt and tell whether the lists
+        stay valid for the next drift)."""
+        self.open_step_pass(i, t_stop, t_end)
+        dt = ti.cast(self.clock.dt[None], float)
+        dt_kick = dt
+        if ti.static(self.features.integrator == "leapfrog"):
+            dt_kick = 0.5 * dt
+        if ti.static(self.features.density == "continuity"):
+            self.kick_pass(dt_kick, serial)
+            self.continuity_pass(serial)
+            self.drift_pass(dt_kick, dt, False, serial)
+        else:
+            self.drift_pass(dt_kick, dt, True, serial)
+        if ti.static(self.features.shifting and self.features.integrator != "leapfrog"):
+            self.shifting.compute_pass(dt, serial)
+            self.shifting.move_pass(serial)
+        self.rebuild_pass(serial)
+        self.rates_passes(serial)
+        if ti.static(self.features.integrator == "leapfrog"):
+            self.kick_pass(0.5 * dt, serial)
+            if ti.static(self.features.shifting):
+                self.shifting.compute_pass(dt, serial)
+                self.shifting.move_pass(serial)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            self.clock.close_step(t_end)
+
+    @ti.kernel
+    def step_kernel(self, i: ti.i32, t_stop: ti.f64, t_end: ti.f64, serial: ti.template()):
+        """One step: one launch (each pass a loop, run in order)."""
+        self.step_passes(i, t_stop, t_end, serial)
+
+    @ti.kernel
+    def advance_serial(self, max_steps: ti.i32, t_stop: ti.f64, t_end: ti.f64, out: ti.types.ndarray()):
+        """Up to max_steps steps on one thread in one launch, then the clock to `out`."""
+        ti.loop_config(serialize=True)
+        for i in range(max_steps):
+            self.step_passes(i, t_stop, t_end, True)
+        self.clock.export(self.stats, out)
+
+    @ti.kernel
+    def export_clock(self, out: ti.types.ndarray()):
+        self.clock.export(self.stats, out)
+
+    def _launch(self, max_steps: int, t_stop: float, t_end: float, serial: bool) -> list[float]:
+        """Launch up to max_steps steps and read the clock back once: returns the steps' dts."""
+        if serial:
+            self.advance_serial(max_steps, t_stop, t_end, self.clock_host)
+        else:
+            for i in range(max_steps):
+                self.step_kernel(i, t_stop, t_end, False)
+            self.export_clock(self.clock_host)
+        out = self.clock_host
+        done = int(out[1])
+        self.t = float(out[0])
+        self.step_count += done
+        self.last_dt_limit = DT_LIMITS[int(out[2])]
+        self.builds = int(out[3])
+        self.stats_host[:] = out[4:9]
+        self.stats_now = self.read_stats(reduce=False)
+        self.nsearch.invalidate_stats()
+        return out[DeviceClock.HEADER:DeviceClock.HEADER + min(done, self.clock.capacity)].tolist()
 
     def prepare(self) -> None:
         """Pressure, neighbour lists, then accelerations and stats of the initial state.
 
-        While the loop schedule is undecided, every step kernel is compiled here in both variants (each
-        run once on the initial state, which a zero step leaves as it is), so that compiling counts
-        as start-up and not as the probe steps' time."""
+        While the loop schedule is undecided, the step kernels are compiled here in both variants (each
+        called once with t_end = -inf: a step that does not run), so that compiling counts as start-up
+        and not as the probe steps' time."""
         self.tait_equation_of_state()
         self.update_body_force(self.t)
+        self.rebuild_neighbors()
+        self.binding = self.nsearch.binding(self.particles.x, self.particles.persistent_fields)
+        if self.binding.other:
+            raise ValueError("the device-resident build permutes one value per particle; a multi-index field is bound")
+        self.clock.t[None] = self.t
+        self.clock.builds[None] = self.builds
         variants = (True, False) if self.schedule.deciding else (self.schedule.next(),)
         for serial in variants:
-            self.rebuild_neighbors(serial)
-            self.kick_continuity_drift(0.0, 0.0, serial)
-            if self.features.integrator == "leapfrog":
-                self.kick(0.0, serial)
+            self._launch(1, -math.inf, -math.inf, serial)
             self.wcsph_rates(self.stats_host, serial)
         self.stats_now = self.read_stats(reduce=False)
 
-    def step(self) -> float:
-        """Advance one step; returns the dt used. Forces of the new state end the step (their stats
-        choose the next dt and tell whether the lists stay valid for the next drift).
-
-        symplectic_euler: v^{n+1} = v^n + dt a^n; rho^{n+1} = rho^n + dt drho(v^{n+1}); x^{n+1} = x^n + dt v^{n+1}.
-        leapfrog (kick-drift-kick): half kick with a^n, drift x and rho with v^{n+1/2}, forces at n+1, half kick.
-        """
+    def advance(self, max_steps: int, t_stop: float = math.inf, t_end: float = math.inf) -> list[float]:
+        """Up to max_steps steps while t < t_stop (the first always) and t < t_end; returns their dts.
+        While the loop schedule is being decided, one timed step per launch."""
         schedule = self.schedule
-        serial = schedule.next()
-        t0 = time.perf_counter() if schedule.deciding else 0.0
-        s = self.stats_now
-        dt = self.choose_dt(s["max_speed"], s["max_acc"], self.c0)
-        self.update_body_force(self.t + dt)  # the forces below act at the end of the step
-        leapfrog = self.features.integrator == "leapfrog"
-        dt_kick = 0.5 * dt if leapfrog else dt
-        shift_before_forces = self.shifting is not None and not leapfrog
-        rebuild = self.needs_rebuild(dt)
-        self.kick_continuity_drift(dt_kick, dt, serial)
-        if shift_before_forces:
-            self.shifting.apply(dt)
-        if rebuild:
-            self.rebuild_neighbors(serial)
-        self.wcsph_rates(self.stats_host, serial)
-        if leapfrog:
-            self.kick(0.5 * dt, serial)
-        if leapfrog and self.shifting is not None:
-            self.shifting.apply(dt)
-        self.stats_now = self.read_stats(reduce=False)
-        if schedule.deciding:
-            ti.sync()
+        dts: list[float] = []
+        while schedule.deciding and len(dts) < max_steps:
+            if self.t >= t_end - 1e-12 or (dts and self.t >= t_stop - 1e-12):
+                return dts
+            serial = schedule.next()
+            t0 = time.perf_counter()
+            dts += self._launch(1, t_stop, t_end, serial)
             schedule.record(serial, time.perf_counter() - t0)
-        self.t += dt
-        self.step_count += 1
-        return dt
+        steps = min(max_steps - len(dts), self.clock.capacity)
+        if steps <= 0 or self.t >= t_end - 1e-12 or (dts and self.t >= t_stop - 1e-12):
+            return dts
+        if not schedule.serial and math.isfinite(t_stop):
+            # one launch per step here: queue about as many as reach t_stop (the rest would be empty steps)
+            last = self.choose_dt(self.stats_now["max_speed"], self.stats_now["max_acc"], self.c0)
+            steps = max(1, min(steps, int(math.ceil((t_stop - self.t) / max(last, 1e-30))) + 1))
+        return dts + self._launch(steps, t_stop, t_end, schedule.serial)
+
+    def step(self) -> float:
+        """Advance one step (capped by dt_cap); returns the dt used."""
+        dts = self.advance(1, math.inf, self.t + self.dt_cap)
+        return dts[0] if dts else 0.0
 
     def extra_summary(self) -> dict:
         """Which loop schedule the step ran with (decided by timing on the CPU)."""
