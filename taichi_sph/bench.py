@@ -60,7 +60,7 @@ def worker(spec: dict) -> dict:
     from .geometry import build_particles
     from .runtime import current_arch_name, init_taichi
     from .simulation import make_solver
-    cfg = load_config(bundled_configs_dir() / SCENES[spec["dim"]], spec["overrides"])
+    cfg = load_config(spec.get("config") or bundled_configs_dir() / SCENES[spec["dim"]], spec["overrides"])
     init_taichi(cfg.arch, cfg.precision)
     arrays = build_particles(cfg)
     solver = make_solver(cfg, arrays)
@@ -76,11 +76,15 @@ def worker(spec: dict) -> dict:
 
     guard_every = cfg.guards.check_every
 
+    budget = spec.get("budget_s") or math.inf
+    t_budget = time.perf_counter() + budget
+
     def run_steps(n_steps: int, t_end: float) -> int:
         """Step as `taichi-sph run` does between outputs: batches of guard_every steps (which a solver
-        with a device-resident loop runs without read-backs), the guard's stats read after each."""
+        with a device-resident loop runs without read-backs), the guard's stats read after each; stop
+        after n_steps, at t_end or when the wall-time budget is spent."""
         done = 0
-        while done < n_steps and solver.t < t_end - 1e-12:
+        while done < n_steps and solver.t < t_end - 1e-12 and time.perf_counter() < t_budget:
             dts = solver.advance(min(guard_every, n_steps - done), math.inf, t_end)
             if not dts:
                 break
@@ -135,11 +139,14 @@ def worker(spec: dict) -> dict:
     return out
 
 
-def _run_worker(spec: dict, cache_dir: str) -> dict:
+def _run_worker(spec: dict, cache_dir: str, timeout: float | None = None) -> dict:
     env = dict(os.environ, TI_OFFLINE_CACHE_FILE_PATH=cache_dir, ENABLE_TAICHI_HEADER_PRINT="false")
     t0 = time.perf_counter()
-    proc = subprocess.run([sys.executable, "-m", "taichi_sph.bench", json.dumps(spec)], capture_output=True,
-                          text=True, env=env)
+    try:
+        proc = subprocess.run([sys.executable, "-m", "taichi_sph.bench", json.dumps(spec)], capture_output=True,
+                              text=True, env=env, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return {"error": f"did not finish within {timeout:.0f} s"}
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
@@ -154,8 +161,11 @@ def _fmt_rate(x: float | None) -> str:
 
 
 def cmd_bench(args) -> int:
+    if args.report:
+        from .report import cmd_report
+        return cmd_report(args)
     try:
-        counts = [int(float(c)) for c in str(args.particles).split(",") if c.strip()]
+        counts = [int(float(c)) for c in str(args.particles or "10000,100000,1000000").split(",") if c.strip()]
         dims = [int(d) for d in str(args.dims).split(",") if d.strip()]
     except ValueError:
         raise UsageError(f"--particles and --dims take comma-separated numbers, got {args.particles!r}, {args.dims!r}") from None

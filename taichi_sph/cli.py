@@ -73,13 +73,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--video", choices=("mp4", "gif", "none"))
 
     p = sub.add_parser("bench", help="particle-steps/s, compile time and memory")
-    p.add_argument("--particles", default="10000,100000,1000000",
+    p.add_argument("--particles", default=None,
                    help="comma-separated particle counts (default 10000,100000,1000000; 1M in 3D takes minutes)")
     p.add_argument("--dims", default="2,3", help="comma-separated dimensions (default 2,3)")
     p.add_argument("--solver", default="wcsph", choices=("wcsph", "isph"))
     p.add_argument("--steps", type=int, default=100, help="timed steps per case")
     p.add_argument("--pysph-scene", action="store_true", help="also time PySPH's 2D dam break scene to t = 0.7 s")
     p.add_argument("--json", help="write the table as JSON here too")
+    p.add_argument("--report", action="store_true",
+                   help="one-call report: WCSPH and ISPH particle-steps/s in 2D and 3D at --particles (default "
+                        "100k, 1M, 4M) and the real-time factor of every bundled scene (meant for a GPU: --arch cuda)")
+    p.add_argument("--budget", type=float, default=12.0,
+                   help="--report: wall seconds of stepping per bundled scene (default 12)")
     _add_common(p)
 
     for name, helptext in (("compare", "run WCSPH and ISPH on the same scene and compare"),
