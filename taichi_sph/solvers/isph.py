@@ -38,7 +38,10 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
    symmetric (momentum-conserving) form was tried first: at a resting surface it is 3.8% out of
    balance, and the tank at rest paired particles and blew up within 10 steps of dt = 0.016 s.
    Kinematic wall condition (`isph.wall_clearance`): the speed toward each wall face within reach is cut
-   so that no particle comes closer than the clearance (free-surface films have no PPE pressure).
+   so that no particle comes closer than the clearance (free-surface films have no PPE pressure). Faces
+   are fixed planes of each wall body's own shape; a sliding wall's velocity does not move them (it used
+   to: on the lid-driven cavity the box's side faces, given to the lid's particles with the lid's
+   velocity, pushed the fluid under the lid; physics/walls.py says how).
 6. Particle shifting (on by default for ISPH).
 
 Divergence and Laplacian are divided by their value on the initial lattice for a linear (quadratic)
@@ -350,7 +353,7 @@ class ISPHSolver(SolverBase):
                         if P.kind[b] == WALL:
                             distance = xa.dot(self.wall_normal[b]) - self.wall_offset[b]
                             if distance > -0.5 * self.dx:  # on the fluid side of that face (or just past it)
-                                v, c = kinematic_wall_condition(v, P.v[b], self.wall_normal[b], distance,
+                                v, c = kinematic_wall_condition(v, self.wall_normal[b], distance,
                                                                 self.wall_clearance, dt)
                                 cut = ti.max(cut, c)
                     if cut:
