@@ -159,6 +159,9 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
         floats += d
     if cfg.solver == "wcsph":
         floats += (f.density == "continuity") + (f.density_diffusion != "none")
+        if f.walls and cfg.wcsph.wall_clearance is not None:
+            floats += 2 * (d + 1)                           # wall planes (+ scratch)
+            ints += 1                                       # near-wall flag
     else:
         kinematic = f.walls and cfg.isph.wall_clearance is not None
         floats += 2 * ((d + 1) if kinematic else 0) + d     # wall planes (+ scratch), acc scratch

@@ -48,6 +48,7 @@ class LoopState:
     dts: list = field(default_factory=list)
     step_times: list = field(default_factory=list)
     max_rho_err: float = 0.0
+    max_wall_crossings: int = 0           # fluid particles outside their wall box, most at one output time
     frames: int = 0                       # frames written
     render_s: float = 0.0
     wall_s: float = 0.0                   # stepping wall time of the segments before a resume
@@ -261,6 +262,8 @@ class Simulation:
                     if at_output:
                         row = self._observe(solver, state, loop.dt, stats)
                         loop.max_rho_err = max(loop.max_rho_err, row["max_density_error"])
+                        loop.max_wall_crossings = max(loop.max_wall_crossings,
+                                                      wall_crossings(state["x"], state["kind"], cfg))
                         if series:
                             series.append(row)
                         loop.next_out += cfg.output.every
@@ -348,6 +351,9 @@ class Simulation:
         crossings = wall_crossings(final["x"], final["kind"], cfg)
         if status == "ok" and crossings:
             self.warnings.append(f"{crossings} fluid particles ended outside their wall box")
+        elif status == "ok" and loop.max_wall_crossings:
+            self.warnings.append(f"up to {loop.max_wall_crossings} fluid particles were outside their wall box at "
+                                 f"output times (none at the end)")
         self.warnings.extend(w for w in self.order_log.warnings() if w not in self.warnings)
         summary = {
             "scene": cfg.name, "solver": solver.name, "dim": cfg.dim,
@@ -365,6 +371,7 @@ class Simulation:
                 "momentum": diag.total_momentum(final["v"][f], final["mass"][f]).tolist(),
                 "kinetic_energy": diag.kinetic_energy(final["v"][f], final["mass"][f]),
                 "wall_crossings": crossings,
+                "wall_crossings_max": max(loop.max_wall_crossings, crossings),  # at any output time
             },
             "particle_order": self.order_log.summary(),
             "c0": solver.c0 if solver.name == "wcsph" else None,

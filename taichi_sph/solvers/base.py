@@ -8,12 +8,12 @@ import taichi as ti
 
 from ..config import AUTO, Config
 from ..features import Features
-from ..geometry import FLUID, WALL, ParticleArrays, lattice_kernel_sum, max_neighbors_for, tait_b
+from ..geometry import FLUID, WALL, ParticleArrays, lattice_kernel_sum, max_neighbors_for, tait_b, wall_face_planes
 from ..kernels import make_kernel
 from ..neighbors import NeighborSearch
 from ..particles import ParticleFields, np_float
 from ..physics.eos import tait_density, tait_pressure
-from ..physics.walls import adami_wall_pressure, adami_wall_velocity
+from ..physics.walls import adami_wall_pressure, adami_wall_velocity, kinematic_wall_condition
 from .clock import DeviceClock
 
 
@@ -132,6 +132,47 @@ class SolverBase:
         # t, dt and `live` on the device: the step passes loop over `live_n()` particles, so that a step a
         # device-resident loop does not take is empty (solvers stepping from the host leave live at 1)
         self.clock = DeviceClock()
+
+    # -- kinematic wall condition -----------------------------------------------------------
+    def init_kinematic_walls(self, arrays: ParticleArrays, clearance_dx: float | None) -> None:
+        """Each wall particle's face (unit normal into the fluid, plane offset; permuted with it) for the
+        kinematic wall condition (physics/walls.py), kept `clearance_dx` dx off the faces; None: off."""
+        self.kinematic_walls = self.features.walls and clearance_dx is not None
+        if self.kinematic_walls:
+            P = self.particles
+            self.wall_clearance = clearance_dx * self.dx
+            normal, offset = wall_face_planes(self.cfg, arrays.x, arrays.kind)
+            self.wall_normal = P.add_vector(persistent=True)
+            self.wall_offset = P.add_scalar(persistent=True)
+            self.wall_normal.from_numpy(normal.astype(np_float()))
+            self.wall_offset.from_numpy(offset.astype(np_float()))
+            self.wall_cuts = ti.field(ti.i32, shape=())  # particle-steps the condition cut (over the run)
+
+    @ti.func
+    def kinematic_wall_cut(self, a, v, dt):
+        """v of fluid particle a after the kinematic condition of each wall neighbour's face (only faces
+        it is on the fluid side of, or at most dx/2 past); returns (v, 1 if some face cut it)."""
+        P = self.particles
+        NS = self.nsearch
+        xa = P.x[a]
+        out = v
+        cut = 0
+        for k in range(NS.count[a]):
+            b = NS.neighbors[a, k]
+            if P.kind[b] == WALL:
+                distance = xa.dot(self.wall_normal[b]) - self.wall_offset[b]
+                if distance > -0.5 * self.dx:
+                    w, c = kinematic_wall_condition(out, self.wall_normal[b], distance, self.wall_clearance, dt)
+                    out = w
+                    cut = ti.max(cut, c)
+        return out, cut
+
+    def kinematic_walls_summary(self) -> dict:
+        """summary.json `kinematic_walls`: the clearance and how often the condition acted."""
+        if not getattr(self, "kinematic_walls", False):
+            return {}
+        return {"kinematic_walls": {"clearance_dx": self.wall_clearance / self.dx,
+                                    "particle_steps_cut": int(self.wall_cuts[None])}}
 
     # -- neighbours ---------------------------------------------------------------------
     def rebuild_neighbors(self, serial: bool = False) -> None:

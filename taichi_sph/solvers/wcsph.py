@@ -58,6 +58,9 @@ class WCSPHSolver(SolverBase):
         self.shift_cap = self.shifting.max_shift if self.shifting is not None else 0.0
         self.clock_host = np.zeros(DeviceClock.HEADER + self.clock.capacity, dtype=np.float64)
         self.binding = None  # the neighbour build bound to the persistent fields (made in prepare)
+        self.init_kinematic_walls(arrays, cfg.wcsph.wall_clearance)
+        # fluid particles with a wall neighbour (set by the force pass, read by the next drift: same order)
+        self.near_wall = P.add_scalar(dtype=ti.i32) if self.kinematic_walls else None
 
     # -- the pair loop ------------------------------------------------------------------
     @ti.kernel
@@ -90,6 +93,7 @@ class WCSPHSolver(SolverBase):
                 xa, va, rho_a, p_a = P.x[a], P.v[a], P.rho[a], P.p[a]
                 acc = ti.Vector.zero(float, self.dim)
                 drho = 0.0
+                near_wall = 0
                 for k in range(NS.count[a]):
                     b = NS.neighbors[a, k]
                     r_ab = NS.pair_vector(xa, P.x[b])
@@ -98,6 +102,8 @@ class WCSPHSolver(SolverBase):
                     grad_w = self.kernel.grad_w(r_ab, r)
                     m_b, rho_b = P.mass[b], P.rho[b]
                     is_fluid_b = P.kind[b] == FLUID
+                    if not is_fluid_b:
+                        near_wall = 1
                     v_ab = va - P.v[b]
                     acc += symmetric_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
                     if ti.static(self.features.tensile_correction):
@@ -125,6 +131,8 @@ class WCSPHSolver(SolverBase):
                 if ti.static(self.features.gravity):
                     acc += self.gravity[None]
                 P.acc[a] = acc
+                if ti.static(self.kinematic_walls):
+                    self.near_wall[a] = near_wall
                 if ti.static(self.features.density_diffusion != "none"):
                     self.drho_diffusion[a] = drho
                 self.accumulate_stats(a)
@@ -150,13 +158,26 @@ class WCSPHSolver(SolverBase):
                 self.drho[a] = drho
 
     @ti.func
-    def kick_pass(self, dt: float, serial: ti.template()):
-        """v += dt a (fluid)."""
+    def kick_pass(self, dt: float, dt_drift: float, guard: ti.template(), serial: ti.template()):
+        """v += dt a (fluid); `guard`: a drift by dt_drift follows, so the kinematic wall condition applies."""
         P = self.particles
         ti.loop_config(serialize=serial)
         for a in range(self.live_n()):
             if P.kind[a] == FLUID:
                 P.v[a] += dt * P.acc[a]
+                if ti.static(guard):
+                    self.wall_guard(a, dt_drift)
+
+    @ti.func
+    def wall_guard(self, a, dt):
+        """The kinematic wall condition (`wcsph.wall_clearance`) on fluid particle a before a drift by dt:
+        only particles the last force pass saw next to a wall are tested."""
+        if ti.static(self.kinematic_walls):
+            if self.near_wall[a]:
+                v, cut = self.kinematic_wall_cut(a, self.particles.v[a], dt)
+                if cut:
+                    self.particles.v[a] = v
+                    ti.atomic_add(self.wall_cuts[None], 1)
 
     @ti.func
     def drift_pass(self, dt_kick: float, dt: float, kick: ti.template(), serial: ti.template()):
@@ -168,6 +189,7 @@ class WCSPHSolver(SolverBase):
             if P.kind[a] == FLUID:
                 if ti.static(kick):
                     P.v[a] += dt_kick * P.acc[a]
+                    self.wall_guard(a, dt)
                 P.x[a] += dt * P.v[a]
                 if ti.static(self.features.density == "continuity"):
                     rate = self.drho[a]
@@ -268,7 +290,7 @@ class WCSPHSolver(SolverBase):
         if ti.static(self.features.integrator == "leapfrog"):
             dt_kick = 0.5 * dt
         if ti.static(self.features.density == "continuity"):
-            self.kick_pass(dt_kick, serial)
+            self.kick_pass(dt_kick, dt, True, serial)
             self.continuity_pass(serial)
             self.drift_pass(dt_kick, dt, False, serial)
         else:
@@ -279,7 +301,7 @@ class WCSPHSolver(SolverBase):
         self.rebuild_pass(serial)
         self.rates_passes(serial)
         if ti.static(self.features.integrator == "leapfrog"):
-            self.kick_pass(0.5 * dt, serial)
+            self.kick_pass(0.5 * dt, dt, False, serial)
             if ti.static(self.features.shifting):
                 self.shifting.compute_pass(dt, serial)
                 self.shifting.move_pass(serial)
@@ -370,6 +392,7 @@ class WCSPHSolver(SolverBase):
         return dts[0] if dts else 0.0
 
     def extra_summary(self) -> dict:
-        """Which loop schedule the step ran with (decided by timing on the CPU)."""
+        """Which loop schedule the step ran with (decided by timing on the CPU); the wall condition's count."""
         serial = self.schedule.serial
-        return {"loop_schedule": "undecided" if serial is None else ("serial" if serial else "parallel")}
+        return {"loop_schedule": "undecided" if serial is None else ("serial" if serial else "parallel"),
+                **self.kinematic_walls_summary()}
