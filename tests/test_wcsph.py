@@ -235,3 +235,28 @@ def test_loop_schedule_probes_then_keeps_the_faster():
         assert solver.schedule.deciding
         solver.step()
     assert not solver.schedule.deciding
+
+
+def impact_cfg(clearance):
+    """A 10 x 10 block thrown at 2 m/s diagonally into the floor of a closed box (c0 = 40 m/s)."""
+    return config_from_dict({
+        "name": "impact", "dim": 2, "gravity": [0.0, -9.81],
+        "domain": {"lo": [-0.1, -0.1], "hi": [0.5, 0.5]},
+        "particles": {"dx": 0.01, "hdx": 1.3, "kernel": "wendland_c2"},
+        "fluid": {"reference_speed": 4.0, "c0_factor": 10.0},
+        "wcsph": {"wall_clearance": clearance, "density_diffusion": {"model": "fourtakas", "delta": 0.1}},
+        "bodies": [{"type": "fluid_block", "lo": [0.05, 0.02], "hi": [0.15, 0.12], "velocity": [2.0, -2.0]},
+                   {"type": "wall_box", "lo": [0.0, 0.0], "hi": [0.4, 0.4], "layers": 3}],
+        "time": {"t_end": 0.15}, "output": {"every": 0.002},
+    })
+
+
+def test_kinematic_wall_condition_keeps_an_impact_inside_the_box():
+    """Without the condition the impact pushes particles past the floor and wall faces (measured: 5 at
+    the end, up to 7 at one output); with it none at any output, and it did act."""
+    off = run(impact_cfg(None)).summary
+    on = run(impact_cfg(0.25)).summary
+    assert off["status"] == on["status"] == "ok"
+    assert off["conservation"]["wall_crossings_max"] >= 2  # the case does test the condition
+    assert on["conservation"]["wall_crossings_max"] == 0 and on["conservation"]["wall_crossings"] == 0
+    assert on["kinematic_walls"]["particle_steps_cut"] > 0 and "kinematic_walls" not in off
