@@ -348,8 +348,9 @@ class MatrixFreePPE:
             z = M r                                                             (r.z reduced)
             beta = rz_new / rz;  d = z + beta d;  q = A z + beta q              (d.q reduced)
 
-        Two particle kernels (the particle ends of the V-cycle ride with CG's vector updates), the cell levels'
-        kernels (one for all the small levels) and no host read-back.
+        Two particle kernels (the particle ends of the V-cycle ride with CG's vector updates; two products by
+        the neighbour list, see physics/multigrid.py), the cell levels' kernels (one for all the small levels)
+        and no host read-back.
         """
         self.mgcg_update(serial)
         self.mg.coarse_cycle(serial)
