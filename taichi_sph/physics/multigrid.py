@@ -482,26 +482,31 @@ class CellMultigrid:
         """z = u + omega (r - A u) / diag with u = z0 + s P y_1, where A u = A z0 (kept by restrict_particles)
         + s A P y_1 (`coarse_correction`): no product with the neighbour list. r . z reduced (and sum z,
         sum r with `sums`)."""
+        if ti.static(sums):
+            self.ppe.sums.add(self.prolong_row, (self.rz_slot, self.z_sum_slot, self.r_sum_slot), serial, 0.0)
+        else:
+            self.ppe.sums.add(self.prolong_row, (self.rz_slot,), serial, 0.0)
+
+    @ti.func
+    def prolong_row(self, a, _):
+        """z_a of prolong_particles; returns (r_a z_a, z_a, r_a)."""
         E = self.ppe
         NS = self.ppe.nsearch
-        ti.loop_config(serialize=serial)
-        for a in range(E.n):
-            z = 0.0
-            if E.role[a] == ti.static(self.unknown):
-                c = NS.cell_id[a]
-                u = E.z0[a]
-                au = 0.0
-                if self.dinv[c] > 0.0:  # a's cell is in the coarse space: restrict_particles kept A z0
-                    u += self.scale * self.y[c]
-                    au = E.z[a] + self.scale * self.coarse_correction(a, c)
-                else:  # A_1[c, c] = 0 (a pure Neumann system whose unknowns all share one cell): not restricted
-                    au = E.apply(E.z0, a)
-                z = u + self.omega * (E.res[a] - au) / E.diag[a]
-                ti.atomic_add(E.scalars[ti.static(self.rz_slot)], E.res[a] * z)
-                if ti.static(sums):
-                    ti.atomic_add(E.scalars[ti.static(self.z_sum_slot)], z)
-                    ti.atomic_add(E.scalars[ti.static(self.r_sum_slot)], E.res[a])
-            E.z[a] = z
+        z = 0.0
+        r = 0.0
+        if E.role[a] == ti.static(self.unknown):
+            c = NS.cell_id[a]
+            u = E.z0[a]
+            au = 0.0
+            if self.dinv[c] > 0.0:  # a's cell is in the coarse space: restrict_particles kept A z0
+                u += self.scale * self.y[c]
+                au = E.z[a] + self.scale * self.coarse_correction(a, c)
+            else:  # A_1[c, c] = 0 (a pure Neumann system whose unknowns all share one cell): not restricted
+                au = E.apply(E.z0, a)
+            r = E.res[a]
+            z = u + self.omega * (r - au) / E.diag[a]
+        E.z[a] = z
+        return ti.Vector([r * z, z, r])
 
     # -- the V-cycle: the cell levels ---------------------------------------------------------------
     def coarse_cycle(self, serial: bool) -> None:
