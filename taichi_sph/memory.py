@@ -8,8 +8,9 @@ and a sphere is counted row by row. The bytes follow what the solvers allocate:
   copy of every field the neighbour build permutes; the cell sort's five i32 arrays; the neighbour list
   (`max_neighbors` i32); the Verlet reference positions (skin > 0); no-slip ghost velocities; WCSPH
   continuity and delta-SPH rates; the shifting vector; ISPH's PPE arrays (role, rhs, diag, residual,
-  CG vectors, one coefficient per neighbour-list slot and, with `mgcg`, each particle's coupling to
-  the 3^dim - 1 cells around its own) and wall-face planes; the renderer's two f32 vectors;
+  CG vectors, a coefficient and a column index per neighbour-list slot and, with `mgcg`, each
+  particle's coupling to the 3^dim - 1 cells around its own) and wall-face planes; the renderer's two
+  f32 vectors;
 - per cell: the cell-start and cell-count arrays (i32), and with `mgcg` its cell levels' stencils and
   vectors (`multigrid_bytes`);
 - on the host: the numpy particle arrays the run keeps (float64), the lattice temporaries of the
@@ -161,7 +162,7 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
         floats += 2 * ((d + 1) if kinematic else 0) + d     # wall planes (+ scratch), acc scratch
         floats += 1 + d                                     # rho_summation, grad_p_estimate
         floats += 4 + nb + {"cg": 3, "mgcg": 4 + 3 ** d - 1}.get(cfg.isph.ppe.solver_for(n_fluid), 0)
-        ints += 1
+        ints += 2 + nb                                      # role, row start, a column index per pair
     extra = 24.0 if render else 0.0
     return floats * fp + ints * 4 + extra
 

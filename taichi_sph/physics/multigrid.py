@@ -8,7 +8,7 @@ Construction (chosen over a background-grid rediscretisation because every coars
 algebra of the particle operator, with its Dirichlet free surface, Neumann walls and periodic wrap, and
 nothing has to be re-derived per boundary type):
 
-- level 0: the particles, A as stored by `MatrixFreePPE` (pair coefficients beside the neighbour list);
+- level 0: the particles, A as stored by `MatrixFreePPE` (pair coefficients in packed rows);
 - level 1: aggregates = the cells of the neighbour search (size = support radius, particles sorted by
   cell), so a particle couples only to its own and the 3^dim surrounding cells; P is piecewise constant
   (p_a = x_cell(a)) and A_1 = P^T A P, a 3^dim stencil per cell summed from the pair coefficients:
@@ -399,10 +399,10 @@ class CellMultigrid:
             for a in range(NS.cell_start[c], NS.cell_start[c + 1]):
                 if E.role[a] == ti.static(self.unknown):
                     coupling = ti.Vector.zero(float, self.n_slots)  # sum of coeff_ab over the b in each cell
-                    for k in range(NS.count[a]):
-                        coeff = E.coeff[a, k]
+                    for j in range(E.row_start[a], E.row_start[a + 1]):
+                        coeff = E.pair_coeff[j]
                         if coeff != 0.0:
-                            coupling[self.top_slot(c, ic, NS.cell_id[NS.neighbors[a, k]])] += coeff
+                            coupling[self.top_slot(c, ic, NS.cell_id[E.pair_col[j]])] += coeff
                     row[ti.static(self.center)] += E.diag[a]
                     row -= coupling
                     for s in ti.static(range(self.n_slots)):
