@@ -399,10 +399,10 @@ class CellMultigrid:
             for a in range(NS.cell_start[c], NS.cell_start[c + 1]):
                 if E.role[a] == ti.static(self.unknown):
                     coupling = ti.Vector.zero(float, self.n_slots)  # sum of coeff_ab over the b in each cell
-                    for j in range(E.row_start[a], E.row_start[a + 1]):
-                        coeff = E.pair_coeff[j]
+                    for j in range(E.rows.row_start[a], E.rows.row_start[a + 1]):
+                        coeff = E.rows.coeff[j]
                         if coeff != 0.0:
-                            coupling[self.top_slot(c, ic, NS.cell_id[E.pair_col[j]])] += coeff
+                            coupling[self.top_slot(c, ic, NS.cell_id[E.rows.col[j]])] += coeff
                     row[ti.static(self.center)] += E.diag[a]
                     row -= coupling
                     for s in ti.static(range(self.n_slots)):

@@ -23,6 +23,7 @@ import time
 import taichi as ti
 
 from .multigrid import CellMultigrid
+from .packed_rows import PackedRows
 from .reduction import RowSums
 
 # role of a particle in the system
@@ -98,18 +99,16 @@ def free_surface_pressure(rho0: float, depth: float, grad_c, body_acc, acc) -> f
 # ----------------------------------------------------------------------------- the linear system
 @ti.data_oriented
 class MatrixFreePPE:
-    """A p = b over the particles with role UNKNOWN, A = diag - offdiag stored as packed rows (CSR):
+    """A p = b over the particles with role UNKNOWN, A = diag - offdiag with the pair coefficients in packed rows
+    (physics/packed_rows.py):
 
-        (A x)_a = sum_j pair_coeff[j] (x_a - x_{pair_col[j]}) + diag_dirichlet[a] x_a,  row_start[a] <= j < row_start[a + 1]
+        (A x)_a = sum_j coeff[j] (x_a - x_{col[j]}) + diag_dirichlet[a] x_a,  j over a's row
 
     (one entry per neighbour-list entry, zero for neighbours that are not unknowns; differences keep f32
-    accurate where the pressure is large). Packed rather than beside the padded neighbour list (max_neighbors
-    slots a row, ~20 used in 2D): a product streams only the used entries, 2.2x faster on one CPU thread
-    (100k rows of 20 entries, 50 slots) and far less hurt by a busy memory bus; the price is the column
-    indices, max_neighbors i32 per particle. The caller fills role, then (in its assembly kernel)
-    `plan_rows()`, every pair with `set_pair`, diag (= A_aa), diag_dirichlet, rhs and the scalars
-    N_UNKNOWN, N_DIRICHLET, BB (= |b|^2), SUM_B; `solve()` iterates on the field `p` in place, starting
-    from its current values (warm start).
+    accurate where the pressure is large). The caller fills role, then in its assembly kernel
+    `rows.plan(role, UNKNOWN)`, every pair with `rows.set`, diag (= A_aa), diag_dirichlet, rhs and the
+    scalars N_UNKNOWN, N_DIRICHLET, BB (= |b|^2), SUM_B; `solve()` iterates on the field `p` in place,
+    starting from its current values (warm start).
     """
 
     def __init__(self, p, nsearch, n: int, max_neighbors: int, solver: str, tolerance: float, max_iterations: int,
@@ -127,11 +126,6 @@ class MatrixFreePPE:
         self.rhs = ti.field(float, n)
         self.diag = ti.field(float, n)
         self.diag_dirichlet = ti.field(float, n)
-        # the unknowns' rows packed one after the other (CSR): row a holds one (neighbour, coefficient) entry per
-        # neighbour-list entry at row_start[a] .. row_start[a + 1] - 1 (see `plan_rows`)
-        self.row_start = ti.field(ti.i32, n + 1)
-        self.pair_col = ti.field(ti.i32, n * max_neighbors)
-        self.pair_coeff = ti.field(float, n * max_neighbors)
         self.res = ti.field(float, n)
         if solver in ("cg", "mgcg"):
             self.z = ti.field(float, n)
@@ -145,55 +139,16 @@ class MatrixFreePPE:
                                     multigrid.cell_sweeps, UNKNOWN, (RZ_NEW, SUM_Z, SUM_R))
         self.scalars = ti.field(float, 11)
         self.sums = RowSums(n, self.scalars, 3)  # every reduction over the particles (fixed order on the CPU)
-        self.block_start = ti.field(ti.i32, self.sums.n_blocks)  # plan_rows' scan, on RowSums' blocks
+        self.rows = PackedRows(nsearch, n, max_neighbors, self.sums)  # the pair coefficients
         # CPU: whether the iteration loops run on one thread (see `_choose_schedule`); elsewhere parallel
         self.on_cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
         self.serial: bool | None = None if self.on_cpu else False
         self.schedule_timings: dict[str, float] = {}
 
     @ti.func
-    def plan_rows(self):
-        """row_start from the roles and the neighbour counts (an exclusive scan of count over the unknowns, on
-        fixed blocks: block sums in parallel, their scan on one thread, each block's rows in parallel). Called
-        by the assembly before it stores the pairs with `set_pair`."""
-        NS = self.nsearch
-        B = ti.static(self.sums.block)
-        for blk in range(self.sums.n_blocks):
-            total = 0
-            for a in range(blk * B, ti.min(blk * B + B, self.n)):
-                if self.role[a] == UNKNOWN:
-                    total += NS.count[a]
-            self.block_start[blk] = total
-        ti.loop_config(serialize=True)
-        for _ in range(1):
-            start = 0
-            for blk in range(self.sums.n_blocks):
-                total = self.block_start[blk]
-                self.block_start[blk] = start
-                start += total
-            self.row_start[self.n] = start
-        for blk in range(self.sums.n_blocks):
-            start = self.block_start[blk]
-            for a in range(blk * B, ti.min(blk * B + B, self.n)):
-                self.row_start[a] = start
-                if self.role[a] == UNKNOWN:
-                    start += NS.count[a]
-
-    @ti.func
-    def set_pair(self, a, k, b, coeff):
-        """The coefficient of a's k-th neighbour b (0 for a neighbour that is not an unknown)."""
-        j = self.row_start[a] + k
-        self.pair_col[j] = b
-        self.pair_coeff[j] = coeff
-
-    @ti.func
     def apply(self, x: ti.template(), a):
         """(A x)_a, streaming a's packed row."""
-        xa = x[a]
-        ax = self.diag_dirichlet[a] * xa
-        for j in range(self.row_start[a], self.row_start[a + 1]):
-            ax += self.pair_coeff[j] * (xa - x[self.pair_col[j]])
-        return ax
+        return self.rows.add_differences(x, a, self.diag_dirichlet[a] * x[a])
 
     @ti.func
     def rhs_row(self, a, _):
