@@ -8,7 +8,8 @@ and a sphere is counted row by row. The bytes follow what the solvers allocate:
   copy of every field the neighbour build permutes; the cell sort's five i32 arrays; the neighbour list
   (`max_neighbors` i32); the Verlet reference positions (skin > 0); no-slip ghost velocities; WCSPH
   continuity and delta-SPH rates; the shifting vector; ISPH's PPE arrays (role, rhs, diag, residual,
-  CG vectors and one coefficient per neighbour-list slot) and wall-face planes; the renderer's two
+  CG vectors, a coefficient and a column index per neighbour-list slot and, with `mgcg`, each
+  particle's coupling to the 3^dim - 1 cells around its own) and wall-face planes; the renderer's two
   f32 vectors;
 - per cell: the cell-start and cell-count arrays (i32), and with `mgcg` its cell levels' stencils and
   vectors (`multigrid_bytes`);
@@ -166,8 +167,8 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
         kinematic = f.walls and cfg.isph.wall_clearance is not None
         floats += 2 * ((d + 1) if kinematic else 0) + d     # wall planes (+ scratch), acc scratch
         floats += 1 + d                                     # rho_summation, grad_p_estimate
-        floats += 4 + nb + {"cg": 3, "mgcg": 4}.get(cfg.isph.ppe.solver_for(n_fluid), 0)
-        ints += 1
+        floats += 4 + nb + {"cg": 3, "mgcg": 4 + 3 ** d - 1}.get(cfg.isph.ppe.solver_for(n_fluid), 0)
+        ints += 2 + nb                                      # role, row start, a column index per pair
     extra = 24.0 if render else 0.0
     return floats * fp + ints * 4 + extra
 

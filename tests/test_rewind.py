@@ -1,8 +1,9 @@
 """Rewinding a solver in memory (the live view's reset): the steps after `restore()` are a fresh solver's.
 
 WCSPH replays bit for bit. ISPH's PPE picks its loop schedule (serial or parallel) by timing its first
-steps, and the two sum in different orders, so a replay may differ at rounding level (measured: t by
-2e-9 s, x by 5e-7 m after 25 steps); the bound is 1e-5 of each field's scale."""
+steps; when the two summed in different orders a replay differed at rounding level (t by 2e-9 s, x by
+5e-7 m after 25 steps). The PPE's sums are now in a fixed order on either schedule (physics/reduction.py,
+tests/test_multigrid.py checks bit-identical runs); the bound here stays 1e-5 of each field's scale."""
 
 from __future__ import annotations
 

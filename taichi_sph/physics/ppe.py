@@ -8,7 +8,7 @@ With K_ab = shao_lo_laplacian_weight(...) >= 0 the left side is -sum_b K_ab (p_a
 graph Laplacian. Multiplying row a by V_a = m_a / rho0 makes it symmetric (V_a K_ab = V_b K_ba), and
 positive definite once some particle has a prescribed (Dirichlet) pressure.
 
-`MatrixFreePPE` stores that system as per-pair coefficients beside the neighbour list and solves it with
+`MatrixFreePPE` stores that system as per-pair coefficients in packed rows (CSR) and solves it with
 weighted Jacobi, Jacobi-preconditioned conjugate gradients (one Taichi kernel per iteration), or conjugate
 gradients preconditioned by the aggregation multigrid V-cycle of physics/multigrid.py (`mgcg`: iterations
 nearly flat in N: 9 / 11 / 15 a step on the 2D dam break at 10k / 100k / 1M particles, where Jacobi-CG
@@ -23,13 +23,17 @@ import time
 import taichi as ti
 
 from .multigrid import CellMultigrid
+from .packed_rows import PackedRows
+from .reduction import RowSums
 
 # role of a particle in the system
 UNKNOWN, DIRICHLET, NOT_IN_PPE = 0, 1, 2
 # slots of the scalar field the kernels reduce into
 RR, BB, RZ, RZ_NEW, PQ, N_UNKNOWN, N_DIRICHLET, SUM_B, SUM_P, SUM_Z, SUM_R = range(11)
-# iterations between two read-backs of the residual norm
-CHECK_EVERY = {"mgcg": 2, "cg": 2, "jacobi": 10}
+# iterations between two read-backs of the residual norm, on the CPU and on a GPU: on the CPU a read-back costs
+# ~10 us against 0.4-4 ms a CG iteration, and checking every iteration saves the half iteration a step that
+# overshoots (mgcg, 2D dam break, 100k particles: 11.4 -> 11.0 iterations a step); a GPU pays a sync per check
+CHECK_EVERY = {"mgcg": (1, 2), "cg": (1, 2), "jacobi": (10, 10)}
 # the first block of CG iterations long enough to time both loop schedules (see `_choose_schedule`)
 SCHEDULE_PROBE = 8
 PPE_SOLVERS = tuple(CHECK_EVERY)
@@ -95,12 +99,14 @@ def free_surface_pressure(rho0: float, depth: float, grad_c, body_acc, acc) -> f
 # ----------------------------------------------------------------------------- the linear system
 @ti.data_oriented
 class MatrixFreePPE:
-    """A p = b over the particles with role UNKNOWN, A = diag - offdiag stored beside the neighbour list:
+    """A p = b over the particles with role UNKNOWN, A = diag - offdiag with the pair coefficients in packed rows
+    (physics/packed_rows.py):
 
-        (A x)_a = sum_k coeff[a, k] (x_a - x_{neighbors[a, k]}) + diag_dirichlet[a] x_a
+        (A x)_a = sum_j coeff[j] (x_a - x_{col[j]}) + diag_dirichlet[a] x_a,  j over a's row
 
-    (coeff is zero for neighbours that are not unknowns; differences keep f32 accurate where the
-    pressure is large). The caller fills role, coeff, diag (= A_aa), diag_dirichlet, rhs and the
+    (one entry per neighbour-list entry, zero for neighbours that are not unknowns; differences keep f32
+    accurate where the pressure is large). The caller fills role, then in its assembly kernel
+    `rows.plan(role, UNKNOWN)`, every pair with `rows.set`, diag (= A_aa), diag_dirichlet, rhs and the
     scalars N_UNKNOWN, N_DIRICHLET, BB (= |b|^2), SUM_B; `solve()` iterates on the field `p` in place,
     starting from its current values (warm start).
     """
@@ -120,7 +126,6 @@ class MatrixFreePPE:
         self.rhs = ti.field(float, n)
         self.diag = ti.field(float, n)
         self.diag_dirichlet = ti.field(float, n)
-        self.coeff = ti.field(float, (n, max_neighbors))
         self.res = ti.field(float, n)
         if solver in ("cg", "mgcg"):
             self.z = ti.field(float, n)
@@ -133,53 +138,57 @@ class MatrixFreePPE:
             self.mg = CellMultigrid(self, multigrid.smoother_omega, multigrid.coarse_scale, multigrid.coarsest_sweeps,
                                     multigrid.cell_sweeps, UNKNOWN, (RZ_NEW, SUM_Z, SUM_R))
         self.scalars = ti.field(float, 11)
+        self.sums = RowSums(n, self.scalars, 3)  # every reduction over the particles (fixed order on the CPU)
+        self.rows = PackedRows(nsearch, n, max_neighbors, self.sums)  # the pair coefficients
         # CPU: whether the iteration loops run on one thread (see `_choose_schedule`); elsewhere parallel
-        self.serial: bool | None = None if ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64) else False
+        self.on_cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
+        self.serial: bool | None = None if self.on_cpu else False
         self.schedule_timings: dict[str, float] = {}
 
     @ti.func
     def apply(self, x: ti.template(), a):
-        """(A x)_a."""
-        NS = self.nsearch
-        xa = x[a]
-        ax = self.diag_dirichlet[a] * xa
-        for k in range(NS.count[a]):
-            ax += self.coeff[a, k] * (xa - x[NS.neighbors[a, k]])
-        return ax
+        """(A x)_a, streaming a's packed row."""
+        return self.rows.add_differences(x, a, self.diag_dirichlet[a] * x[a])
+
+    @ti.func
+    def rhs_row(self, a, _):
+        b = 0.0
+        if self.role[a] == UNKNOWN:
+            b = self.rhs[a]
+        return ti.Vector([b * b, b])
 
     @ti.func
     def sum_rhs(self):
-        """|b|^2 and sum b over the unknowns, on one thread: the stopping test is relative to |b|, so a sum
-        whose order varied between runs (parallel float atomics) changed where CG stopped, and ISPH runs
-        were not reproducible."""
-        self.scalars[BB] = 0.0
-        self.scalars[SUM_B] = 0.0
-        ti.loop_config(serialize=True)
-        for a in range(self.n):
-            if self.role[a] == UNKNOWN:
-                self.scalars[BB] += self.rhs[a] * self.rhs[a]
-                self.scalars[SUM_B] += self.rhs[a]
+        """|b|^2 and sum b over the unknowns, in a fixed order on the CPU (physics/reduction.py): the stopping
+        test is relative to |b|, so a sum whose order varied between runs changed where CG stopped."""
+        self.sums.add(self.rhs_row, (BB, SUM_B), False, 0.0)
 
     # -- pure Neumann problems (no Dirichlet particle): A has the constants as null space ---------------
+    @ti.func
+    def mean_free_rhs_row(self, a, mean):
+        b = 0.0
+        if self.role[a] == UNKNOWN:
+            b = self.rhs[a] - mean
+            self.rhs[a] = b
+        return ti.Vector([b * b])
+
     @ti.kernel
     def remove_rhs_mean(self):
-        """Project b onto the range of A (zero mean) and recompute |b|^2 (one thread: see sum_rhs)."""
+        """Project b onto the range of A (zero mean) and recompute |b|^2."""
         mean = self.scalars[SUM_B] / ti.max(self.scalars[N_UNKNOWN], 1.0)
-        self.scalars[BB] = 0.0
-        ti.loop_config(serialize=True)
-        for a in range(self.n):
-            if self.role[a] == UNKNOWN:
-                self.rhs[a] -= mean
-                self.scalars[BB] += self.rhs[a] * self.rhs[a]
+        self.sums.add(self.mean_free_rhs_row, (BB,), False, mean)
+
+    @ti.func
+    def pressure_row(self, a, _):
+        p = 0.0
+        if self.role[a] == UNKNOWN:
+            p = self.p[a]
+        return ti.Vector([p])
 
     @ti.kernel
     def set_mean(self, level: float):
-        """Fix the free constant: the unknowns' mean pressure becomes `level` (the sum on one thread)."""
-        self.scalars[SUM_P] = 0.0
-        ti.loop_config(serialize=True)
-        for a in range(self.n):
-            if self.role[a] == UNKNOWN:
-                self.scalars[SUM_P] += self.p[a]
+        """Fix the free constant: the unknowns' mean pressure becomes `level`."""
+        self.sums.add(self.pressure_row, (SUM_P,), False, 0.0)
         shift = level - self.scalars[SUM_P] / ti.max(self.scalars[N_UNKNOWN], 1.0)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
@@ -192,54 +201,58 @@ class MatrixFreePPE:
                 self.p[a] = value
 
     # -- iterations ---------------------------------------------------------------------------------------
+    @ti.func
+    def residual_row(self, a, _):
+        """r_a = b_a - (A p)_a stored; returns r_a^2."""
+        r = 0.0
+        if self.role[a] == UNKNOWN:
+            r = self.rhs[a] - self.apply(self.p, a)
+            self.res[a] = r
+        return ti.Vector([r * r])
+
     @ti.kernel
     def jacobi_iteration(self, serial: ti.template()):
         """r = b - A p (|r|^2 reduced), then p += omega r / A_aa."""
-        self.scalars[RR] = 0.0
-        ti.loop_config(serialize=serial)
-        for a in range(self.n):
-            if self.role[a] == UNKNOWN:
-                r = self.rhs[a] - self.apply(self.p, a)
-                self.res[a] = r
-                ti.atomic_add(self.scalars[RR], r * r)
+        self.sums.add(self.residual_row, (RR,), serial, 0.0)
         ti.loop_config(serialize=serial)
         for a in range(self.n):
             if self.role[a] == UNKNOWN:
                 self.p[a] += self.omega * self.res[a] / self.diag[a]
 
+    @ti.func
+    def cg_start_row(self, a, _):
+        r = 0.0
+        z = 0.0
+        if self.role[a] == UNKNOWN:
+            r = self.rhs[a] - self.apply(self.p, a)
+            z = r / self.diag[a]
+        self.res[a] = r
+        self.z[a] = z
+        self.d[a] = z
+        self.q[a] = 0.0
+        return ti.Vector([r * r, r * z])
+
+    @ti.func
+    def first_direction_row(self, a, _):
+        dq = 0.0
+        if self.role[a] == UNKNOWN:
+            q = self.apply(self.z, a)
+            self.q[a] = q
+            dq = self.d[a] * q
+        return ti.Vector([dq])
+
     @ti.kernel
     def cg_start(self, serial: ti.template()):
         """r = b - A p, z = r / diag, d = z, q = A d (all zero outside the unknowns)."""
-        for s in ti.static((RR, RZ, PQ)):
-            self.scalars[s] = 0.0
-        ti.loop_config(serialize=serial)
-        for a in range(self.n):
-            r = 0.0
-            z = 0.0
-            if self.role[a] == UNKNOWN:
-                r = self.rhs[a] - self.apply(self.p, a)
-                z = r / self.diag[a]
-                ti.atomic_add(self.scalars[RR], r * r)
-                ti.atomic_add(self.scalars[RZ], r * z)
-            self.res[a] = r
-            self.z[a] = z
-            self.d[a] = z
-            self.q[a] = 0.0
-        ti.loop_config(serialize=serial)
-        for a in range(self.n):
-            if self.role[a] == UNKNOWN:
-                q = self.apply(self.z, a)
-                self.q[a] = q
-                ti.atomic_add(self.scalars[PQ], self.d[a] * q)
+        self.sums.add(self.cg_start_row, (RR, RZ), serial, 0.0)
+        self.sums.add(self.first_direction_row, (PQ,), serial, 0.0)
 
     @ti.func
     def step_length(self):
-        """alpha = rz / d.q (0 once d.q vanished); clears the |r|^2 and r.z_new the update pass reduces."""
+        """alpha = rz / d.q (0 once d.q vanished)."""
         alpha = 0.0
         if self.scalars[PQ] > 0.0:
             alpha = self.scalars[RZ] / self.scalars[PQ]
-        self.scalars[RR] = 0.0
-        self.scalars[RZ_NEW] = 0.0
         return alpha
 
     @ti.func
@@ -258,16 +271,29 @@ class MatrixFreePPE:
             alpha = rz / d.q;  p += alpha d;  r -= alpha q;  z = r / diag      (|r|^2, r.z reduced)
             beta = rz_new / rz;  d = z + beta d;  q = A z + beta q             (d.q reduced)
         """
-        alpha = self.step_length()
-        ti.loop_config(serialize=serial)
-        for a in range(self.n):
-            if self.role[a] == UNKNOWN:
-                r = self.advance(a, alpha)
-                z = r / self.diag[a]
-                self.z[a] = z
-                ti.atomic_add(self.scalars[RR], r * r)
-                ti.atomic_add(self.scalars[RZ_NEW], r * z)
+        self.sums.add(self.jacobi_cg_update_row, (RR, RZ_NEW), serial, self.step_length())
         self.conjugate_direction(serial)
+
+    @ti.func
+    def jacobi_cg_update_row(self, a, alpha):
+        r = 0.0
+        z = 0.0
+        if self.role[a] == UNKNOWN:
+            r = self.advance(a, alpha)
+            z = r / self.diag[a]
+            self.z[a] = z
+        return ti.Vector([r * r, r * z])
+
+    @ti.func
+    def direction_row(self, a, beta):
+        dq = 0.0
+        if self.role[a] == UNKNOWN:
+            d = self.z[a] + beta * self.d[a]
+            q = self.apply(self.z, a) + beta * self.q[a]
+            self.d[a] = d
+            self.q[a] = q
+            dq = d * q
+        return ti.Vector([dq])
 
     @ti.func
     def conjugate_direction(self, serial: ti.template()):
@@ -276,46 +302,42 @@ class MatrixFreePPE:
         if self.scalars[RZ] > 0.0:
             beta = self.scalars[RZ_NEW] / self.scalars[RZ]
         self.scalars[RZ] = self.scalars[RZ_NEW]
-        self.scalars[PQ] = 0.0
-        ti.loop_config(serialize=serial)
-        for a in range(self.n):
-            if self.role[a] == UNKNOWN:
-                d = self.z[a] + beta * self.d[a]
-                q = self.apply(self.z, a) + beta * self.q[a]
-                self.d[a] = d
-                self.q[a] = q
-                ti.atomic_add(self.scalars[PQ], d * q)
+        self.sums.add(self.direction_row, (PQ,), serial, beta)
 
     @ti.kernel
     def mgcg_residual(self, serial: ti.template()):
         """r = b - A p, z0 = omega r / diag, then the V-cycle's restriction to the cells (see `mgcg_iteration`)."""
-        for s in ti.static((RR, RZ, RZ_NEW, PQ)):
+        for s in ti.static((RZ, PQ)):
             self.scalars[s] = 0.0
-        ti.loop_config(serialize=serial)
-        for a in range(self.n):
-            r = 0.0
-            z0 = 0.0
-            if self.role[a] == UNKNOWN:
-                r = self.rhs[a] - self.apply(self.p, a)
-                z0 = self.mg.omega * r / self.diag[a]
-                ti.atomic_add(self.scalars[RR], r * r)
-            self.res[a] = r
-            self.z0[a] = z0
-            self.d[a] = 0.0
-            self.q[a] = 0.0
+        self.sums.add(self.mgcg_start_row, (RR,), serial, 0.0)
         self.mg.restrict_particles(serial)
+
+    @ti.func
+    def mgcg_start_row(self, a, _):
+        r = 0.0
+        z0 = 0.0
+        if self.role[a] == UNKNOWN:
+            r = self.rhs[a] - self.apply(self.p, a)
+            z0 = self.mg.omega * r / self.diag[a]
+        self.res[a] = r
+        self.z0[a] = z0
+        self.d[a] = 0.0
+        self.q[a] = 0.0
+        return ti.Vector([r * r])
 
     @ti.kernel
     def mgcg_update(self, serial: ti.template()):
         """alpha = rz / d.q;  p += alpha d;  r -= alpha q  (|r|^2 reduced);  z0 = omega r / diag; restriction."""
-        alpha = self.step_length()
-        ti.loop_config(serialize=serial)
-        for a in range(self.n):
-            if self.role[a] == UNKNOWN:
-                r = self.advance(a, alpha)
-                self.z0[a] = self.mg.omega * r / self.diag[a]
-                ti.atomic_add(self.scalars[RR], r * r)
+        self.sums.add(self.mgcg_update_row, (RR,), serial, self.step_length())
         self.mg.restrict_particles(serial)
+
+    @ti.func
+    def mgcg_update_row(self, a, alpha):
+        r = 0.0
+        if self.role[a] == UNKNOWN:
+            r = self.advance(a, alpha)
+            self.z0[a] = self.mg.omega * r / self.diag[a]
+        return ti.Vector([r * r])
 
     @ti.kernel
     def mgcg_direction(self, serial: ti.template(), pinned: ti.template()):
@@ -323,9 +345,6 @@ class MatrixFreePPE:
         `pinned` (no Dirichlet particle): z is made zero-mean, z - mean(z) with r.z corrected by mean(z) sum(r):
         the preconditioner acts on the range of A (f32 round-off leaves r a mean that the V-cycle's
         constant-preserving coarse levels would otherwise feed into d, and CG then diverged below 1e-6)."""
-        if ti.static(pinned):
-            self.scalars[SUM_Z] = 0.0
-            self.scalars[SUM_R] = 0.0
         self.mg.prolong_particles(serial, pinned)
         if ti.static(pinned):
             mean_z = self.scalars[SUM_Z] / self.scalars[N_UNKNOWN]
@@ -348,8 +367,9 @@ class MatrixFreePPE:
             z = M r                                                             (r.z reduced)
             beta = rz_new / rz;  d = z + beta d;  q = A z + beta q              (d.q reduced)
 
-        Two particle kernels (the particle ends of the V-cycle ride with CG's vector updates), the cell levels'
-        kernels (one for all the small levels) and no host read-back.
+        Two particle kernels (the particle ends of the V-cycle ride with CG's vector updates; two products by
+        the neighbour list, see physics/multigrid.py), the cell levels' kernels (one for all the small levels)
+        and no host read-back.
         """
         self.mgcg_update(serial)
         self.mg.coarse_cycle(serial)
@@ -374,7 +394,7 @@ class MatrixFreePPE:
             self.fill_unknowns(neumann_level if pure_neumann else 0.0)
             return 0, 0.0, pure_neumann
         iterate = {"mgcg": self.mgcg_iteration, "cg": self.cg_iteration, "jacobi": self.jacobi_iteration}[self.solver]
-        check = CHECK_EVERY[self.solver]
+        check = CHECK_EVERY[self.solver][0 if self.on_cpu else 1]
         iterations = 0
         residual = math.inf
         if self.solver == "cg":

@@ -237,6 +237,7 @@ class ISPHSolver(SolverBase):
         E = self.ppe
         for s in ti.static((BB, SUM_B, N_UNKNOWN)):
             E.scalars[s] = 0.0
+        E.rows.plan(E.role, UNKNOWN)
         for a in range(self.n):
             if E.role[a] == UNKNOWN:
                 xa, va = P.x[a], P.v[a]
@@ -268,7 +269,7 @@ class ISPHSolver(SolverBase):
                         diag += k_ab
                         diag_dirichlet += k_ab
                         rhs += k_ab * P.p[b]
-                    E.coeff[a, k] = c_ab
+                    E.rows.set(a, k, b, c_ab)
                     moment += k_ab * r_ab
                     div_v += velocity_divergence_term(P.mass[b] / self.rho0, va - v_b, grad_w)
                 div_v *= self.grad_norm
