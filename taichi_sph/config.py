@@ -109,7 +109,11 @@ class TensileCorrection:
 @dataclass(frozen=True)
 class Shifting:
     enabled: bool | None = opt(None, "particle shifting (Lind et al. 2012 form, free-surface aware); None = on for ISPH, off for WCSPH")
-    coefficient: float = opt(2.0, "A in the shift dr_a = -D grad C_a with D = A h |v_a| dt (Skillen et al. 2013)", minimum=0.0)
+    model: str = opt("skillen", "the speed in the diffusion coefficient D = A h U dt: the particle's own |v_a| (Skillen et al. "
+                                "2013; vanishes at stagnation points, where a stretched lattice then stays as it is) or the "
+                                "largest fluid speed of the step (Sun et al. 2017, delta+-SPH: CFL Ma (2h)^2 = 4 h U dt)",
+                     choices=("skillen", "sun"))
+    coefficient: float = opt(2.0, "A in the shift dr_a = -D grad C_a with D = A h U dt (U: see shifting.model)", minimum=0.0)
     max_shift: float = opt(0.1, "cap on |dr_a| per step, as a fraction of dx", positive=True)
 
 

@@ -396,7 +396,7 @@ class ISPHSolver(SolverBase):
             self.wall_pressure()
         self.correct_and_move(dt)
         if self.shifting is not None:
-            self.shifting.apply(dt)
+            self.shifting.apply(dt, s["max_speed"])
         self.t += dt
         self.step_count += 1
         return dt

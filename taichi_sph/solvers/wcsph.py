@@ -216,14 +216,14 @@ class WCSPHSolver(SolverBase):
         rebuild = self.needs_rebuild(dt)
         self.kick_continuity_drift(dt_kick, dt, serial)
         if shift_before_forces:
-            self.shifting.apply(dt)
+            self.shifting.apply(dt, s["max_speed"])
         if rebuild:
             self.rebuild_neighbors(serial)
         self.wcsph_rates(self.stats_host, serial)
         if leapfrog:
             self.kick(0.5 * dt, serial)
         if leapfrog and self.shifting is not None:
-            self.shifting.apply(dt)
+            self.shifting.apply(dt, s["max_speed"])
         self.stats_now = self.read_stats(reduce=False)
         if schedule.deciding:
             ti.sync()
