@@ -20,6 +20,7 @@ class Features:
     moving_walls: bool
     no_slip: bool
     gravity: bool
+    central_force: bool
     laminar_viscosity: bool
     artificial_viscosity: bool
     density: str                  # continuity | summation (WCSPH); ISPH always uses summation for its source
@@ -52,6 +53,7 @@ class Features:
             moving_walls=walls and moving,
             no_slip=walls and cfg.walls.slip == "no_slip",
             gravity=cfg.has_gravity,
+            central_force=cfg.central_force.omega > 0.0,
             laminar_viscosity=cfg.fluid.nu > 0.0,
             artificial_viscosity=(alpha > 0.0 or beta > 0.0),
             density=wc.density if cfg.solver == "wcsph" else "summation",
@@ -79,6 +81,8 @@ class Features:
             terms.append("morris_laminar_viscosity")
         if self.gravity:
             terms.append("body_force")
+        if self.central_force:
+            terms.append("central_force")
         if self.walls:
             terms.append("adami_walls:" + ("no_slip" if self.no_slip else "free_slip"))
         if any(self.periodic):

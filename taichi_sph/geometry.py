@@ -143,6 +143,14 @@ def body_velocity(body: Body, pts: np.ndarray, key: str, rng: np.random.Generato
     return v
 
 
+def body_pressure(body: Body, pts: np.ndarray, key: str, rng: np.random.Generator) -> np.ndarray:
+    """Initial pressure of each point of a fluid body: a constant or an expression of its coordinates."""
+    if isinstance(body.pressure, str):
+        coords = {name: pts[:, a] for a, name in enumerate("xyz"[:pts.shape[1]])}
+        return evaluate_expression(body.pressure, coords, key, rng)
+    return np.full(len(pts), float(body.pressure))
+
+
 def tait_b(rho0: float, c0: float, gamma: float) -> float:
     """Tait stiffness B = c0^2 rho0 / gamma."""
     return c0 * c0 * rho0 / gamma
@@ -175,6 +183,8 @@ def build_particles(cfg: Config) -> ParticleArrays:
             # depth measured along g from the body's highest point: p = rho0 |g| depth
             heights = -(pts @ g) / gmag
             p = cfg.fluid.rho0 * gmag * (heights.max() + 0.5 * dx - heights)
+        if kind == FLUID and body.pressure is not None:
+            p = p + body_pressure(body, pts, f"{key}.pressure", rng)
         xs.append(pts)
         vs.append(body_velocity(body, pts, key, rng))
         kinds.append(np.full(len(pts), kind, dtype=np.int32))

@@ -134,12 +134,6 @@ class ISPHSolver(SolverBase):
         self.pure_neumann_steps = 0
         self.ppe_seconds = 0.0  # wall time in the PPE solves (assembly excluded)
 
-    @ti.func
-    def body_acc(self):
-        g = ti.Vector.zero(float, self.dim)
-        if ti.static(self.features.gravity):
-            g = self.gravity[None]
-        return g
 
     # -- 1. density and free surface ------------------------------------------------------
     @ti.kernel
@@ -183,12 +177,12 @@ class ISPHSolver(SolverBase):
                         dist = r_ba.norm()
                         if P.kind[b] == FLUID and dist < self.support and r_ba.dot(outward) > SURFACE_CONE_COS * dist:
                             surface = False
-                self.grad_p_estimate[a] = self.rho0 * (self.body_acc() - acc)
+                self.grad_p_estimate[a] = self.rho0 * (self.body_force(xa) - acc)
                 role = UNKNOWN
                 if surface:
                     role = DIRICHLET
                     P.p[a] = self.p_background + free_surface_pressure(self.rho0, self.surface_depth, grad_c,
-                                                                       self.body_acc(), acc)
+                                                                       self.body_force(xa), acc)
                     ti.atomic_add(E.scalars[N_DIRICHLET], 1.0)
                 if rho < SURFACE_CANDIDATE * self.rho0:
                     rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
@@ -204,9 +198,9 @@ class ISPHSolver(SolverBase):
         NS = self.nsearch
         for a in range(self.n):
             if P.kind[a] == FLUID:
-                acc = self.body_acc()
+                xa, va = P.x[a], P.v[a]
+                acc = self.body_force(xa)
                 if ti.static(self.features.laminar_viscosity or self.features.artificial_viscosity):
-                    xa, va = P.x[a], P.v[a]
                     for k in range(NS.count[a]):
                         b = NS.neighbors[a, k]
                         r_ab = NS.pair_vector(xa, P.x[b])
@@ -242,7 +236,7 @@ class ISPHSolver(SolverBase):
             if E.role[a] == UNKNOWN:
                 xa, va = P.x[a], P.v[a]
                 vol_a = P.mass[a] / self.rho0
-                body = self.body_acc()
+                body = self.body_force(xa)
                 div_v = 0.0
                 diag = 0.0
                 diag_dirichlet = 0.0

@@ -98,8 +98,8 @@ class WCSPHSolver(SolverBase):
                         if ti.static(self.features.no_slip) or is_fluid_b:
                             acc += morris_laminar_viscosity(m_b, self.nu, rho_a, rho_b, v_visc, r_ab, r2, self.eta2,
                                                             grad_w)
-                if ti.static(self.features.gravity):
-                    acc += self.gravity[None]
+                if ti.static(self.features.gravity or self.features.central_force):
+                    acc += self.body_force(xa)
                 P.acc[a] = acc
                 if ti.static(self.features.density_diffusion != "none"):
                     self.drho_diffusion[a] = drho
