@@ -253,11 +253,17 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
     """For each wall particle, the face of its wall body that it lies behind: unit normal n into the
     fluid and offset s, so that y . n - s is a point's signed distance to that face (rows of fluid
     particles are zero). wall_box: the inner face the particle is furthest outside of (a corner
-    particle is behind two; either bounds the fluid); wall_block: the nearest face, normal outward."""
+    particle is behind two; either bounds the fluid); wall_block: the nearest face, normal outward.
+
+    A body only claims the particles of its own shape: an open-top box's shell ends at its top (a lid
+    laid across it is not part of it: claiming the lid's particles gave them the box's side faces, see
+    physics/walls.py), and no face is perpendicular to a periodic axis (a block that spans one has no
+    end there: particles wrapping through the seam met a phantom face)."""
     dim = cfg.dim
     normal = np.zeros((len(x), dim))
     offset = np.zeros(len(x))
     unassigned = kind == WALL
+    no_face = np.repeat(np.asarray(cfg.periodic, dtype=bool), 2)  # columns (lo_0, hi_0, lo_1, ...)
     for body in cfg.bodies:
         if body.type not in ("wall_box", "wall_block") or not unassigned.any():
             continue
@@ -265,7 +271,10 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
         y = x[unassigned]
         if body.type == "wall_box":
             thick = body.layers * cfg.particles.dx + 1e-9
-            inside_shell = np.all((y > lo - thick) & (y < hi + thick), axis=1)
+            top = hi + thick
+            if body.open_top:
+                top[-1] = hi[-1] + 1e-9  # wall_box_points stop at hi along the open axis
+            inside_shell = np.all((y > lo - thick) & (y < top), axis=1)
             # how far outside each face: columns (lo_0, hi_0, lo_1, hi_1, ...), normals +e_a / -e_a
             depth = np.stack([c for a in range(dim) for c in (lo[a] - y[:, a], y[:, a] - hi[a])], axis=1)
             if body.open_top:
@@ -274,6 +283,7 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
             inside_shell = np.all((y > lo - 1e-9) & (y < hi + 1e-9), axis=1)
             # a block's particle is behind the face it is nearest to (largest negative depth)
             depth = -np.stack([c for a in range(dim) for c in (y[:, a] - lo[a], hi[a] - y[:, a])], axis=1)
+        depth[:, no_face] = -np.inf
         face = np.argmax(depth, axis=1)
         axis, upper = face // 2, face % 2 == 1
         sign = np.where(upper, -1.0, 1.0) if body.type == "wall_box" else np.where(upper, 1.0, -1.0)

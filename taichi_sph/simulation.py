@@ -23,6 +23,7 @@ from .errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, RenderUnavailable
 from .geometry import FLUID, build_particles, wall_crossings
 from .metrics import make_metrics, probe_value
 from .output import Progress, RunFolder
+from .particle_order import ORDER_COLUMNS, OrderProbe, ParticleOrderLog
 from .runtime import current_arch_name, init_taichi
 
 
@@ -91,6 +92,9 @@ class Simulation:
         probes = {p.name: probe_value(state, p.position, p.quantity, solver.support, solver.kernel.w_np)
                   for p in cfg.probes}
         row.update(probes)
+        order = self.order_probe.measure()  # particle order: closest pairs, voids, free surface
+        self.order_log.record(solver.t, order)
+        row.update(order)
         observed = dict(state, probes=probes)  # metrics see the probe readings beside the particle state
         for m in self.metrics:
             row.update(m.observe(solver.t, observed))
@@ -168,7 +172,8 @@ class Simulation:
         loop.last_checkpoint_t = solver.t
         fields, arrays, plain = solver.state_items()
         meta = {"t": solver.t, "step": solver.step_count, "solver_plain": plain, "loop": asdict(loop),
-                "metrics": pickle.dumps(self.metrics), "warnings": list(self.warnings), "render": self.render_enabled}
+                "metrics": pickle.dumps(self.metrics), "particle_order": asdict(self.order_log),
+                "warnings": list(self.warnings), "render": self.render_enabled}
         write_checkpoint(folder.path / CHECKPOINT_NAME, fields, arrays, meta)
 
     def _start(self, resume):
@@ -185,6 +190,8 @@ class Simulation:
         t_setup = time.perf_counter()
         solver = make_solver(cfg, arrays)
         self.metrics = make_metrics(cfg) if resume is None else pickle.loads(resume.meta["metrics"])
+        self.order_probe = OrderProbe(solver)
+        self.order_log = ParticleOrderLog(**resume.meta["particle_order"]) if resume is not None else ParticleOrderLog()
         loop = LoopState(next_snap=cfg.output.snapshot_every if cfg.output.snapshot_every else None)
         folder = None
         if self.out_dir is not None:
@@ -214,7 +221,7 @@ class Simulation:
         cfg = self.cfg
         solver, folder, loop = self._start(resume)
 
-        columns = ["t", "step", "dt", "kinetic_energy", "max_speed", "max_density_error"]
+        columns = ["t", "step", "dt", "kinetic_energy", "max_speed", "max_density_error"] + ORDER_COLUMNS
         columns += [p.name for p in cfg.probes] + [c for m in self.metrics for c in m.columns()]
         columns += list(solver.extra_timeseries().keys())
         series = folder.timeseries(columns, append=resume is not None) if folder else None
@@ -325,6 +332,7 @@ class Simulation:
         crossings = wall_crossings(final["x"], final["kind"], cfg)
         if status == "ok" and crossings:
             self.warnings.append(f"{crossings} fluid particles ended outside their wall box")
+        self.warnings.extend(w for w in self.order_log.warnings() if w not in self.warnings)
         summary = {
             "scene": cfg.name, "solver": solver.name, "dim": cfg.dim,
             "n_fluid": solver.particles.n_fluid, "n_wall": solver.particles.n_wall,
@@ -342,6 +350,7 @@ class Simulation:
                 "kinetic_energy": diag.kinetic_energy(final["v"][f], final["mass"][f]),
                 "wall_crossings": crossings,
             },
+            "particle_order": self.order_log.summary(),
             "c0": solver.c0 if solver.name == "wcsph" else None,
             "features": solver.features.compiled_in(),
             "arch": current_arch_name(), "precision": cfg.precision,

@@ -38,7 +38,10 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
    symmetric (momentum-conserving) form was tried first: at a resting surface it is 3.8% out of
    balance, and the tank at rest paired particles and blew up within 10 steps of dt = 0.016 s.
    Kinematic wall condition (`isph.wall_clearance`): the speed toward each wall face within reach is cut
-   so that no particle comes closer than the clearance (free-surface films have no PPE pressure).
+   so that no particle comes closer than the clearance (free-surface films have no PPE pressure). Faces
+   are fixed planes of each wall body's own shape; a sliding wall's velocity does not move them (it used
+   to: on the lid-driven cavity the box's side faces, given to the lid's particles with the lid's
+   velocity, pushed the fluid under the lid; physics/walls.py says how).
 6. Particle shifting (on by default for ISPH).
 
 Divergence and Laplacian are divided by their value on the initial lattice for a linear (quadratic)
@@ -56,6 +59,7 @@ from ..config import Config
 from ..geometry import FLUID, WALL, ParticleArrays, lattice_distances, lattice_kernel_sum, wall_face_planes
 from ..physics.momentum import monaghan_viscosity, morris_laminar_viscosity
 from ..particles import np_float
+from ..physics.free_surface import SURFACE_CANDIDATE, in_surface_cone
 from ..physics.walls import kinematic_wall_condition
 from ..physics.ppe import (BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE,
                            free_surface_pressure, neumann_wall_pressure_difference, ppe_source,
@@ -65,11 +69,6 @@ from .shifting import ParticleShifting
 
 # source weight beta in s = (1 - beta) s_divergence + beta s_density, per `isph.source`
 SOURCE_WEIGHT = {"divergence": lambda blend: 0.0, "density_invariance": lambda blend: 1.0, "blend": lambda blend: blend}
-# below this kernel sum / lattice sum a particle with no fluid neighbour within 45 degrees of its outward
-# normal is at the free surface too (Marrone et al. 2010 style scan, as a cone; walls above a contact
-# line fill the kernel sum but are not fluid); below it the reported density is floored at rho0
-SURFACE_CANDIDATE = 0.97
-SURFACE_CONE_COS = math.cos(math.pi / 4)
 # kernel-gradient correction only where the moment matrix is well conditioned (about 1 on a lattice)
 MIN_MOMENT_DETERMINANT = 0.1
 
@@ -175,7 +174,7 @@ class ISPHSolver(SolverBase):
                         b = NS.neighbors[a, k]
                         r_ba = -NS.pair_vector(xa, P.x[b])
                         dist = r_ba.norm()
-                        if P.kind[b] == FLUID and dist < self.support and r_ba.dot(outward) > SURFACE_CONE_COS * dist:
+                        if P.kind[b] == FLUID and in_surface_cone(r_ba, dist, outward, self.support):
                             surface = False
                 self.grad_p_estimate[a] = self.rho0 * (self.body_force(xa) - acc)
                 role = UNKNOWN
@@ -184,7 +183,7 @@ class ISPHSolver(SolverBase):
                     P.p[a] = self.p_background + free_surface_pressure(self.rho0, self.surface_depth, grad_c,
                                                                        self.body_force(xa), acc)
                     ti.atomic_add(E.scalars[N_DIRICHLET], 1.0)
-                if rho < SURFACE_CANDIDATE * self.rho0:
+                if rho < SURFACE_CANDIDATE * self.rho0:  # (physics/free_surface.py) below it: floored at rho0
                     rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
                 P.rho[a] = rho
             E.role[a] = role
@@ -344,7 +343,7 @@ class ISPHSolver(SolverBase):
                         if P.kind[b] == WALL:
                             distance = xa.dot(self.wall_normal[b]) - self.wall_offset[b]
                             if distance > -0.5 * self.dx:  # on the fluid side of that face (or just past it)
-                                v, c = kinematic_wall_condition(v, P.v[b], self.wall_normal[b], distance,
+                                v, c = kinematic_wall_condition(v, self.wall_normal[b], distance,
                                                                 self.wall_clearance, dt)
                                 cut = ti.max(cut, c)
                     if cut:

@@ -1,0 +1,169 @@
+"""Particle-order diagnostics (taichi_sph/particle_order.py): voids, clumping, the free-surface fraction."""
+
+import numpy as np
+import pytest
+
+from taichi_sph.config import config_from_dict
+from taichi_sph.geometry import FLUID, ParticleArrays, lattice_box, lattice_kernel_sum
+from taichi_sph.output import read_timeseries
+from taichi_sph.particle_order import ORDER_COLUMNS, OrderProbe, ParticleOrderLog
+from taichi_sph.simulation import Simulation, make_solver
+
+DX = 0.1
+CELLS = {1: 40, 2: 30, 3: 14}  # lattice sites per axis
+
+
+def _cfg(dim: int, solver: str = "wcsph"):
+    side = CELLS[dim] * DX
+    return config_from_dict({
+        "name": "order", "dim": dim, "solver": solver, "gravity": [0.0] * dim,
+        "domain": {"lo": [-1.0] * dim, "hi": [side + 1.0] * dim},
+        "particles": {"dx": DX}, "fluid": {"reference_speed": 1.0},
+        "bodies": [{"type": "fluid_block", "lo": [0.0] * dim, "hi": [side] * dim}]})
+
+
+def _probe(cfg, x: np.ndarray):
+    n = len(x)
+    rho0 = cfg.fluid.rho0
+    arrays = ParticleArrays(x=x, v=np.zeros_like(x), rho=np.full(n, rho0), p=np.zeros(n),
+                            mass=np.full(n, rho0 * DX ** cfg.dim), kind=np.full(n, FLUID, dtype=np.int32))
+    solver = make_solver(cfg, arrays)
+    solver.prepare()
+    return solver, OrderProbe(solver)
+
+
+def _kernel_sums(cfg, solver, x: np.ndarray) -> np.ndarray:
+    """c_a = V sum_b W(|x_a - x_b|) / lattice sum, brute force over every pair (the test's reference)."""
+    r = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=2)
+    return DX ** cfg.dim * solver.kernel.w_np(r).sum(axis=1) / lattice_kernel_sum(cfg, solver.kernel.w_np)
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_a_hole_in_a_lattice_is_a_void_and_only_its_rim_is_flagged(dim):
+    """A lattice with a disc (ball, segment) of radius 2.5 dx removed from its middle: the void
+    particles are exactly those within 4 dx of the centre whose kernel sum is below the threshold; the
+    lattice's own outer surface (kernel sums as low or lower) is free surface, not void."""
+    cfg = _cfg(dim)
+    lattice = lattice_box((0.0,) * dim, (CELLS[dim] * DX,) * dim, DX)
+    centre = np.full(dim, CELLS[dim] * DX / 2)
+    x = lattice[np.linalg.norm(lattice - centre, axis=1) > 2.5 * DX]
+    solver, probe = _probe(cfg, x)
+    p = probe.particles()
+    order = np.lexsort(p["x"].T[::-1])
+    ref_order = np.lexsort(x.T[::-1])
+    assert np.allclose(p["x"][order], x[ref_order], atol=1e-5)
+    c_ref = _kernel_sums(cfg, solver, x)[ref_order]
+    c = p["kernel_sum"][order]
+    assert np.allclose(c, c_ref, atol=1e-4)
+    threshold = cfg.isph.free_surface_threshold
+    near_hole = np.linalg.norm(x[ref_order] - centre, axis=1) < 4.0 * DX
+    expected = near_hole & (c_ref < threshold)
+    assert expected.sum() > 0
+    assert np.array_equal(p["void"][order], expected)
+    row = probe.measure()
+    assert row["void_particles"] == expected.sum()
+    # the outer surface is flagged free surface (and is not a void), the hole's rim is flagged too
+    outer = (c_ref < threshold) & ~near_hole
+    assert outer.sum() > 0 and np.all(p["free_surface"][order][outer]) and not np.any(p["void"][order][outer])
+    assert np.isclose(row["min_pair_distance_dx"], 1.0, atol=1e-4) and row["min_wall_distance_dx"] is None
+
+
+@pytest.mark.parametrize("dim", [2, 3])
+def test_a_full_lattice_has_no_void_and_a_surface_band(dim):
+    cfg = _cfg(dim)
+    x = lattice_box((0.0,) * dim, (CELLS[dim] * DX,) * dim, DX)
+    solver, probe = _probe(cfg, x)
+    p = probe.particles()
+    row = probe.measure()
+    assert row["void_particles"] == 0 and not p["void"].any()
+    # flagged free surface: the outermost layer, and nothing deeper than the support
+    depth = np.min(np.minimum(p["x"], CELLS[dim] * DX - p["x"]), axis=1) / DX
+    assert np.all(p["free_surface"][depth < 1.0])
+    assert not np.any(p["free_surface"][depth > solver.support / DX])
+    assert 0.0 < row["free_surface_fraction"] < 1.0
+    assert np.isclose(row["min_pair_distance_dx"], 1.0, atol=1e-4)
+
+
+def test_a_hole_across_the_periodic_corner_is_a_void():
+    """Fully periodic (Taylor-Green-like): no outside at all. A full lattice has no void; with a disc of
+    radius 2.5 dx removed around the corner of the box (split over four periodic images), the void
+    particles are exactly those whose kernel sum is below the threshold."""
+    side = 2.0
+    cfg = config_from_dict({
+        "name": "order", "dim": 2, "solver": "isph", "gravity": [0.0, 0.0],
+        "domain": {"lo": [0.0, 0.0], "hi": [side, side], "periodic": [True, True]},
+        "particles": {"dx": DX}, "fluid": {"reference_speed": 1.0},
+        "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [side, side]}]})
+    lattice = lattice_box((0.0, 0.0), (side, side), DX)
+    _, probe = _probe(cfg, lattice)
+    p = probe.particles()
+    assert not p["void"].any() and not p["free_surface"].any()
+    wrapped = (lattice + 0.5 * side) % side - 0.5 * side  # from the corner, minimum image
+    x = lattice[np.linalg.norm(wrapped, axis=1) > 2.5 * DX]
+    solver, probe = _probe(cfg, x)
+    p = probe.particles()
+    r = x[:, None, :] - x[None, :, :]
+    r -= side * np.round(r / side)
+    c_ref = DX ** 2 * solver.kernel.w_np(np.linalg.norm(r, axis=2)).sum(axis=1) / lattice_kernel_sum(cfg, solver.kernel.w_np)
+    order, ref_order = np.lexsort(p["x"].T[::-1]), np.lexsort(x.T[::-1])
+    expected = c_ref[ref_order] < cfg.isph.free_surface_threshold
+    assert expected.sum() > 0
+    assert np.array_equal(p["void"][order], expected)
+
+
+def test_two_particles_at_three_tenths_of_dx_are_clumping():
+    """A lattice with one more particle 0.3 dx from a site: the closest pair is 0.3 dx and the run's
+    summary warns of clumping (a real run: the first output row is the initial state)."""
+    body = {"type": "fluid_block", "lo": [0.0, 0.0], "hi": [1.0, 1.0]}
+    extra = {"type": "fluid_block", "lo": [0.58 - 0.05, 0.55 - 0.05], "hi": [0.58 + 0.05, 0.55 + 0.05]}
+    cfg = config_from_dict({
+        "name": "clump", "dim": 2, "solver": "wcsph", "gravity": [0.0, 0.0],
+        "domain": {"lo": [-1.0, -1.0], "hi": [2.0, 2.0]},
+        "particles": {"dx": DX}, "fluid": {"reference_speed": 1.0},
+        "bodies": [body, extra], "time": {"t_end": 1e-4, "dt": 1e-4}, "output": {"every": 1e-4}})
+    res = Simulation(cfg, None, render=False, quiet=True).run()
+    order = res.summary["particle_order"]
+    assert order["min_pair_distance_dx"] == pytest.approx(0.3, abs=1e-4)
+    assert order["min_pair_distance_t"] == 0.0
+    assert any("clumping" in w and "0.3 dx" in w for w in res.summary["warnings"])
+    assert not any("void" in w for w in res.summary["warnings"])
+
+
+def test_order_log_extremes_and_warnings():
+    log = ParticleOrderLog()
+    log.record(0.0, {"min_pair_distance_dx": 1.0, "min_wall_distance_dx": None, "void_particles": 0,
+                     "free_surface_fraction": 0.2})
+    assert log.warnings() == []
+    log.record(0.5, {"min_pair_distance_dx": 0.8, "min_wall_distance_dx": 0.9, "void_particles": 7,
+                     "free_surface_fraction": 0.3})
+    log.record(1.0, {"min_pair_distance_dx": 0.9, "min_wall_distance_dx": 1.0, "void_particles": 2,
+                     "free_surface_fraction": 0.25})
+    s = log.summary()
+    assert s["min_pair_distance_dx"] == 0.8 and s["min_pair_distance_t"] == 0.5 and s["min_wall_distance_dx"] == 0.9
+    assert s["max_void_particles"] == 7 and s["max_void_t"] == 0.5 and s["void_outputs"] == 2
+    assert s["free_surface_fraction_max"] == 0.3 and s["free_surface_fraction_final"] == 0.25
+    (w,) = log.warnings()
+    assert "void at t = 0.5" in w
+
+
+@pytest.mark.parametrize("solver", ["wcsph", "isph"])
+def test_order_columns_in_a_real_run(tmp_path, solver):
+    """dam_break_2d at dx = 0.05, t = 0.1 s: the columns in timeseries.csv, the block in summary.json."""
+    from taichi_sph.config import bundled_configs_dir, load_config
+    cfg = load_config(bundled_configs_dir() / "dam_break_2d.yaml",
+                      ["particles.dx=0.05", "time.t_end=0.1", "output.every=0.05", f"solver={solver}"])
+    res = Simulation(cfg, tmp_path, render=False, quiet=True).run()
+    assert res.summary["status"] == "ok"
+    ts = read_timeseries(tmp_path / "timeseries.csv")
+    for column in ORDER_COLUMNS:
+        assert column in ts and len(ts[column]) == 3
+    assert np.all(ts["void_particles"] == 0)
+    # the initial lattice, then values the run reached (ISPH's pairs come closest: 0.49 dx at t = 0.1 s)
+    assert ts["min_pair_distance_dx"][0] == pytest.approx(1.0, abs=1e-4)
+    assert ts["min_wall_distance_dx"][0] == pytest.approx(1.0, abs=1e-4)
+    assert np.all((ts["min_pair_distance_dx"] > 0.3) & (ts["min_wall_distance_dx"] > 0.3))
+    assert np.all((ts["free_surface_fraction"] > 0.0) & (ts["free_surface_fraction"] < 0.5))
+    import json
+    order = json.loads((tmp_path / "summary.json").read_text())["particle_order"]
+    assert order["outputs"] == 3 and order["max_void_particles"] == 0
+    assert order["min_pair_distance_dx"] == pytest.approx(ts["min_pair_distance_dx"].min())
