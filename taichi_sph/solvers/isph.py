@@ -42,7 +42,21 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
    are fixed planes of each wall body's own shape; a sliding wall's velocity does not move them (it used
    to: on the lid-driven cavity the box's side faces, given to the lid's particles with the lid's
    velocity, pushed the fluid under the lid; physics/walls.py says how).
-6. Particle shifting (on by default for ISPH).
+6. Particle shifting (on by default for ISPH; solvers/shifting.py).
+
+The void at the centre of a stretching body (issue 15; configs/elliptical_drop_2d.yaml, u = A0 (x, -y)):
+the corrected pressure gradient has no pairwise repulsion, so nothing but shifting re-orders particles
+that the flow strains, and Skillen's shift D = A h |v_a| dt is zero at the stagnation point at the centre.
+The centre stays an affinely stretched lattice (columns ever further apart of particles ever closer
+together) inside a shifted, isotropic rest; the seam between the two tears: with the scene's settings and
+`shifting.model: skillen`, void particles (interior, kernel sum below the free-surface threshold, so
+Dirichlet p = 0 inside the fluid) from t = 0.26 s, 35 at t = 0.36 s, a hole several dx wide at the centre,
+and a particle thrown out of the domain at t = 0.377 s. A particle row on the mirror line x = 0 (the
+circle's lattice had one) made it worse: no force or shift can move it off the line, and the summation
+density along it reached +15% (cfl 0.25, blend 0.1). Fixed by `shifting.model: sun` (the flow's largest
+speed in D, Sun et al. 2017), on in the drop scenes, and a cell-centred fluid_sphere lattice
+(geometry.lattice_sphere): no void, min pair 0.78 dx, shape error 0.7%. tests/test_drops.py runs the
+stretched drop to t = 0.3 s and asserts no void, the pair distance and the density bound.
 
 Divergence and Laplacian are divided by their value on the initial lattice for a linear (quadratic)
 field: the Wendland C2 gradient sum is 0.974, not 1, at h = 1.3 dx.
