@@ -113,6 +113,8 @@ class ArtificialViscosity:
 class TensileCorrection:
     enabled: bool = opt(False, "Monaghan (2000) artificial pressure against the tensile instability")
     epsilon: float = opt(0.2, "strength: R = epsilon |p| / rho^2 for negative pressures", minimum=0.0)
+    epsilon_positive: float = opt(0.01, "R = this x p / rho^2 for positive pressures (Monaghan 2000's 0.01, as PySPH and "
+                                        "DualSPHysics): holds pairs apart under compression too", minimum=0.0)
     n: float = opt(4.0, "exponent of f = W(r)/W(dx)", positive=True)
 
 

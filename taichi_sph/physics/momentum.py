@@ -10,14 +10,20 @@ def symmetric_pressure_gradient(m_b: float, p_a: float, rho_a: float, p_b: float
 
 
 @ti.func
+def monaghan_artificial_pressure(p: float, rho: float, epsilon: float, epsilon_positive: float) -> float:
+    """Monaghan (2000) R = epsilon |p| / rho^2 for p < 0, epsilon_positive p / rho^2 for p >= 0 (his 0.01)."""
+    return ti.select(p < 0.0, -epsilon * p, epsilon_positive * p) / (rho * rho)
+
+
+@ti.func
 def monaghan_tensile_correction(m_b: float, p_a: float, rho_a: float, p_b: float, rho_b: float, w_ab: float,
-                                w_dx: float, epsilon: float, n: float, grad_w):
-    """Monaghan (2000) artificial pressure: -m_b (R_a + R_b) f^n grad W, f = W(r) / W(dx),
-    R = epsilon |p| / rho^2 for p < 0 (else 0.01 p / rho^2 style small term omitted)."""
-    r_a = ti.select(p_a < 0.0, -epsilon * p_a / (rho_a * rho_a), 0.0)
-    r_b = ti.select(p_b < 0.0, -epsilon * p_b / (rho_b * rho_b), 0.0)
+                                w_dx: float, epsilon: float, epsilon_positive: float, n: float, grad_w):
+    """Monaghan (2000) artificial pressure: -m_b (R_a + R_b) f^n grad W, f = W(r) / W(dx): a repulsion
+    that grows as a pair closes (f > 1 inside dx) and fades at the lattice spacing and beyond."""
+    r_ab = (monaghan_artificial_pressure(p_a, rho_a, epsilon, epsilon_positive)
+            + monaghan_artificial_pressure(p_b, rho_b, epsilon, epsilon_positive))
     f = w_ab / w_dx
-    return -m_b * (r_a + r_b) * ti.pow(f, n) * grad_w
+    return -m_b * r_ab * ti.pow(f, n) * grad_w
 
 
 @ti.func

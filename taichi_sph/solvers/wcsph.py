@@ -35,7 +35,7 @@ class WCSPHSolver(SolverBase):
         self.alpha, self.beta = cfg.artificial_viscosity
         self.delta_h_c0 = cfg.wcsph.density_diffusion.delta * self.h * self.c0
         tc = cfg.wcsph.tensile_correction
-        self.tc_epsilon, self.tc_n = tc.epsilon, tc.n
+        self.tc_epsilon, self.tc_epsilon_positive, self.tc_n = tc.epsilon, tc.epsilon_positive, tc.n
         self.w_dx = float(self.kernel.w_np(np.array([self.dx]))[0])
         self.shifting = ParticleShifting(self, cfg.shifting.coefficient) if f.shifting else None
         self.schedule = LoopSchedule()
@@ -77,8 +77,15 @@ class WCSPHSolver(SolverBase):
                     v_ab = va - P.v[b]
                     acc += symmetric_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
                     if ti.static(self.features.tensile_correction):
-                        acc += monaghan_tensile_correction(m_b, p_a, rho_a, P.p[b], rho_b, self.kernel.w(r), self.w_dx,
-                                                           self.tc_epsilon, self.tc_n, grad_w)
+                        # a wall particle is ghost fluid mirroring particle a: its artificial pressure is a's
+                        # (its Adami pressure is clamped at >= 0, so its own R would leave fluid in tension
+                        # pushed by its fluid neighbours toward the wall and not back)
+                        p_tc, rho_tc = P.p[b], rho_b
+                        if not is_fluid_b:
+                            p_tc, rho_tc = p_a, rho_a
+                        acc += monaghan_tensile_correction(m_b, p_a, rho_a, p_tc, rho_tc, self.kernel.w(r), self.w_dx,
+                                                           self.tc_epsilon, self.tc_epsilon_positive, self.tc_n,
+                                                           grad_w)
                     if ti.static(self.features.density_diffusion != "none"):
                         if is_fluid_b:
                             drho_ab = rho_b - rho_a
