@@ -210,7 +210,7 @@ class SolverBase:
         """Acceleration of the body forces at x: gravity and the harmonic central force, as compiled in."""
         acc = ti.Vector.zero(float, self.dim)
         if ti.static(self.features.gravity):
-            acc += self.gravity[None]
+            acc = self.gravity[None]  # assigned, not added to zero: 0 + g is not folded (-0.0), bits would differ
         if ti.static(self.features.central_force):
             acc += harmonic_central_force(x, self.central_center[None], self.central_omega)
         return acc
