@@ -30,6 +30,7 @@ class Features:
     periodic: tuple[bool, ...]
     reflecting: bool
     shifting: bool
+    shifting_model: str           # skillen | sun (solvers/shifting.py)
     clamp_negative_pressure: bool
 
     @classmethod
@@ -63,6 +64,7 @@ class Features:
             periodic=tuple(cfg.periodic),
             reflecting=cfg.reflecting.enabled,
             shifting=cfg.shifting_enabled,
+            shifting_model=cfg.shifting.model,
             clamp_negative_pressure=cfg.solver == "wcsph" and wc.clamp_negative_pressure,
         )
 
@@ -90,7 +92,7 @@ class Features:
         if self.reflecting:
             terms.append("reflecting_faces")
         if self.shifting:
-            terms.append("particle_shifting")
+            terms.append(f"particle_shifting:{self.shifting_model}")
         if self.clamp_negative_pressure:
             terms.append("clamp_negative_pressure")
         return terms

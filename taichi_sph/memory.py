@@ -156,6 +156,7 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
         floats += d
     if f.shifting:
         floats += d
+        ints += cfg.shifting.model == "sun"  # its surface flags
     if cfg.solver == "wcsph":
         floats += (f.density == "continuity") + (f.density_diffusion != "none")
     else:

@@ -79,3 +79,16 @@ def test_stretched_drop_isph(tmp_path):
     order = s["particle_order"]
     assert order["min_pair_distance_dx"] >= 0.5
     assert order["max_void_particles"] == 0
+
+
+def test_oscillating_drop_wcsph_short(tmp_path):
+    """The central force holds the drop; the first quarter period (a grows to 1.17 R by t = 0.2 s) follows
+    the ODE within 1%."""
+    cfg = load_config(bundled_configs_dir() / "oscillating_drop_2d.yaml",
+                      ["solver=wcsph", "time.t_end=0.2", "time.cfl=0.25"])
+    s = Simulation(cfg, tmp_path, render=False, quiet=True).run().summary
+    assert s["status"] == "ok"
+    assert "central_force" in s["features"]
+    assert s["errors"]["shape_error"] < 0.01
+    assert s["errors"]["a_over_R_end"] == pytest.approx(s["errors"]["a_ref_over_R_end"], rel=0.01)
+    assert s["particle_order"]["min_pair_distance_dx"] >= 0.5
