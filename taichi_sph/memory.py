@@ -15,7 +15,8 @@ and a sphere is counted row by row. The bytes follow what the solvers allocate:
 - on the host: the numpy particle arrays the run keeps (float64), the lattice temporaries of the
   largest body while particles are built (a wall box's lattice spans the whole tank it encloses),
   the copies taken at output times (state, sort order, snapshot encoding) and, beside them, a
-  checkpoint's copy of its largest field (the neighbour list);
+  checkpoint's copy of its largest field (the neighbour list), or the particle-order diagnostics' grid
+  of spacing dx (particle_order.void_particles; bounded by the domain's nodes);
 - a fixed baseline (Python, numpy, Taichi and its LLVM compiler).
 
 `HOST_FACTOR` and `BASELINE_BYTES` were calibrated against the peak RSS of dam_break_2d and
@@ -43,6 +44,8 @@ BASELINE_BYTES = {1: 160e6, 2: 170e6, 3: 235e6}
 RENDER_BYTES = 95e6
 # host copies per particle taken at output times (state dict, argsort, snapshot encoding), measured
 HOST_OUTPUT_BYTES_PER_PARTICLE = {1: 150.0, 2: 200.0, 3: 260.0}
+# the particle-order void grid per node (bool and int32 arrays, union-find edges; counted, not measured)
+ORDER_GRID_BYTES_PER_NODE = 24.0
 # scale of the counted host + device bytes, fitted to the measured peaks
 HOST_FACTOR = 1.0
 
@@ -179,6 +182,15 @@ def cell_count(cfg: Config) -> int:
     return total
 
 
+def order_grid_nodes(cfg: Config) -> int:
+    """Nodes of the particle-order void grid at its largest: spacing dx over the whole domain (it covers
+    the fluid's bounding box and 3.5 dx beyond it)."""
+    total = 1
+    for a in range(cfg.dim):
+        total *= int(math.ceil((cfg.domain.hi[a] - cfg.domain.lo[a]) / cfg.particles.dx)) + 8
+    return total
+
+
 def multigrid_bytes(cfg: Config, n_fluid: int) -> float:
     """mgcg's cell levels: a 3^dim stencil and five vectors per cell of the neighbour grid, and the coarser
     levels (each 2^dim times smaller)."""
@@ -200,7 +212,8 @@ def estimate(cfg: Config, *, render: bool = False, device: bool | None = None) -
     kept = (2 * cfg.dim + 3) * 8 + 4                  # ParticleArrays (float64) kept by the run
     build = largest * (2 * cfg.dim * 8 + 1)           # meshgrid + stacked points of the largest body
     # output copies, and a checkpoint's largest single field copy (the neighbour list) beside them
-    outputs = HOST_OUTPUT_BYTES_PER_PARTICLE[cfg.dim] * n + 4 * neighbour_capacity(cfg) * n
+    outputs = HOST_OUTPUT_BYTES_PER_PARTICLE[cfg.dim] * n + max(4 * neighbour_capacity(cfg) * n,
+                                                                ORDER_GRID_BYTES_PER_NODE * order_grid_nodes(cfg))
     host = BASELINE_BYTES[cfg.dim] + (RENDER_BYTES if render else 0.0) + kept * n + max(build, outputs)
     gpu = on_device(cfg.arch) if device is None else device
     return MemoryEstimate(fluid, wall, neighbour_capacity(cfg), HOST_FACTOR * dev, HOST_FACTOR * host, gpu)

@@ -53,8 +53,8 @@ def _components(empty: np.ndarray, periodic: tuple[bool, ...]) -> np.ndarray:
     elsewhere. Vectorised union-find (hook roots to the smaller root, then pointer jumping)."""
     flat = empty.ravel()
     ids = np.flatnonzero(flat)
-    index = np.full(flat.size, -1, dtype=np.int64)
-    index[ids] = np.arange(len(ids))
+    index = np.full(flat.size, -1, dtype=np.int32)  # int32: a grid of 2^31 nodes would not fit anyway
+    index[ids] = np.arange(len(ids), dtype=np.int32)
     index = index.reshape(empty.shape)
     us, vs = [], []
     for axis in range(empty.ndim):
@@ -67,7 +67,7 @@ def _components(empty: np.ndarray, periodic: tuple[bool, ...]) -> np.ndarray:
         us.append(index[pair])
         vs.append(nxt[pair])
     u, v = np.concatenate(us), np.concatenate(vs)
-    parent = np.arange(len(ids))
+    parent = np.arange(len(ids), dtype=np.int32)
     while True:
         ru, rv = parent[u], parent[v]
         differ = ru != rv
@@ -80,7 +80,7 @@ def _components(empty: np.ndarray, periodic: tuple[bool, ...]) -> np.ndarray:
                 break
             parent = jumped
     labels = np.full(flat.size, -1, dtype=np.int64)
-    labels[ids] = ids[parent]
+    labels[ids] = ids[parent]  # the root's flat index
     return labels.reshape(empty.shape)
 
 

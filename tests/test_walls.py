@@ -1,0 +1,77 @@
+"""The ISPH kinematic wall condition (physics/walls.py) and the wall faces it acts on (geometry.wall_face_planes)."""
+
+import numpy as np
+
+from taichi_sph.config import bundled_configs_dir, config_from_dict, load_config
+from taichi_sph.geometry import FLUID, WALL, build_particles, wall_face_planes
+from taichi_sph.simulation import make_solver
+
+U = 1.0       # top plate speed [m/s]
+H = 0.5       # gap [m]
+DX = 0.05
+
+
+def _couette(clearance):
+    """Plane Couette flow, periodic in x: a fixed floor, a top plate sliding at U, the fluid started on
+    the steady profile u = U y / H. ISPH to t = 0.25 s: in that time every near-plate row carries
+    particles through the periodic seam, past the plates' ends. Returns (final state, extra summary)."""
+    cfg = config_from_dict({
+        "name": "couette", "dim": 2, "solver": "isph", "gravity": [0.0, 0.0],
+        "domain": {"lo": [0.0, -0.2], "hi": [H, H + 0.2], "periodic": [True, False]},
+        "particles": {"dx": DX}, "fluid": {"reference_speed": U, "nu": 0.1},
+        "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [H, H], "velocity": [f"{U} * y / {H}", 0.0]},
+                   {"type": "wall_block", "lo": [0.0, -0.15], "hi": [H, 0.0]},
+                   {"type": "wall_block", "lo": [0.0, H], "hi": [H, H + 0.15], "velocity": [U, 0.0]}],
+        "walls": {"slip": "no_slip"}, "isph": {"wall_clearance": clearance}, "time": {"t_end": 0.25}})
+    solver = make_solver(cfg, build_particles(cfg))
+    solver.prepare()
+    while solver.t < 0.25 - 1e-9:
+        solver.dt_cap = 0.25 - solver.t
+        solver.step()
+    return solver.host_state(), solver.extra_summary()
+
+
+def test_a_sliding_wall_over_a_shear_flow_never_triggers_the_condition():
+    """Before the fix the plates' particles at the periodic seam were given end faces x = 0 and x = H,
+    and the top plate's velocity (U along the normal of those faces) made the condition stop the fluid
+    there. Now nothing approaches a face, so it never acts and the flow is the same as without it."""
+    state, summary = _couette(0.25)
+    assert summary["kinematic_walls"]["particle_steps_cut"] == 0
+    state_off, summary_off = _couette(None)
+    assert "kinematic_walls" not in summary_off
+    fluid = state["kind"] == FLUID
+    assert np.array_equal(state["id"], state_off["id"])
+    assert np.allclose(state["v"][fluid], state_off["v"][fluid], rtol=0.0, atol=1e-6 * U)
+    assert np.allclose(state["x"][fluid], state_off["x"][fluid], rtol=0.0, atol=1e-6 * DX)
+    # and it is still Couette flow: u = U y / H row by row within 3% of U
+    y, u = state["x"][fluid, 1], state["v"][fluid, 0]
+    rows = np.round(y / DX - 0.5).astype(int)
+    for r in np.unique(rows):
+        assert abs(u[rows == r].mean() - U * y[rows == r].mean() / H) < 0.03 * U
+
+
+def test_wall_faces_of_the_lid_driven_cavity():
+    """cavity_2d: the lid (a wall_block across the open-top box) keeps its own face y = 1 for every lid
+    particle in reach of the fluid; the box's shell used to claim them and give them its side faces."""
+    cfg = load_config(bundled_configs_dir() / "cavity_2d.yaml", [])
+    arrays = build_particles(cfg)
+    normal, offset = wall_face_planes(cfg, arrays.x, arrays.kind)
+    x = arrays.x
+    lid = (arrays.kind == WALL) & (x[:, 1] > 1.0) & (x[:, 0] > -0.07) & (x[:, 0] < 1.07) & (x[:, 1] < 1.07)
+    assert lid.sum() > 0
+    assert np.allclose(normal[lid], [0.0, -1.0]) and np.allclose(offset[lid], -1.0)
+    side = (arrays.kind == WALL) & (x[:, 0] < 0.0) & (x[:, 1] > 0.0) & (x[:, 1] < 1.0)
+    assert np.allclose(normal[side], [1.0, 0.0]) and np.allclose(offset[side], 0.0)
+
+
+def test_no_wall_face_across_a_periodic_axis():
+    cfg = config_from_dict({
+        "name": "plates", "dim": 2, "domain": {"lo": [0.0, -0.2], "hi": [H, H + 0.2], "periodic": [True, False]},
+        "particles": {"dx": DX}, "fluid": {"reference_speed": U},
+        "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [H, H]},
+                   {"type": "wall_block", "lo": [0.0, -0.15], "hi": [H, 0.0]}]})
+    arrays = build_particles(cfg)
+    normal, _ = wall_face_planes(cfg, arrays.x, arrays.kind)
+    walls = arrays.kind == WALL
+    assert np.all(normal[walls, 0] == 0.0)
+    assert np.allclose(normal[walls & (arrays.x[:, 1] > -0.05)], [0.0, 1.0])
