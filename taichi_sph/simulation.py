@@ -191,7 +191,8 @@ class Simulation:
         solver = make_solver(cfg, arrays)
         self.metrics = make_metrics(cfg) if resume is None else pickle.loads(resume.meta["metrics"])
         self.order_probe = OrderProbe(solver)
-        self.order_log = ParticleOrderLog(**resume.meta["particle_order"]) if resume is not None else ParticleOrderLog()
+        # a checkpoint written before the particle-order diagnostics has no log: start one
+        self.order_log = ParticleOrderLog(**(resume.meta.get("particle_order") or {}) if resume is not None else {})
         loop = LoopState(next_snap=cfg.output.snapshot_every if cfg.output.snapshot_every else None)
         folder = None
         if self.out_dir is not None:

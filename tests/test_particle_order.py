@@ -167,3 +167,12 @@ def test_order_columns_in_a_real_run(tmp_path, solver):
     order = json.loads((tmp_path / "summary.json").read_text())["particle_order"]
     assert order["outputs"] == 3 and order["max_void_particles"] == 0
     assert order["min_pair_distance_dx"] == pytest.approx(ts["min_pair_distance_dx"].min())
+
+
+def test_void_grid_ignores_an_unstable_state():
+    """A blown-up run's state (inf, NaN, 1e30) at its last output: no grid the size of 1e30 / dx."""
+    from taichi_sph.particle_order import void_particles
+    x = lattice_box((0.0, 0.0), (1.0, 1.0), DX)
+    x[3], x[5], x[7] = [1e30, np.nan], [np.inf, -np.inf], [-1e30, 0.5]
+    c = np.where(np.arange(len(x)) < 20, 0.5, 1.0)
+    assert not void_particles(x, c, 0.8, DX, (-1.0, -1.0), (2.0, 2.0), (False, False)).any()
