@@ -77,6 +77,16 @@ class Body:
     velocity: tuple[Any, ...] | None = opt(None, "initial velocity (fluid) or prescribed velocity (wall): dim numbers, or dim "
                                            "expressions of x, y, z, t-free (numpy functions sin, cos, exp, sqrt, pi, ...)", unit="m/s")
     hydrostatic: bool = opt(False, "fluid_block/fluid_sphere: start with hydrostatic density for the given gravity (free surface at the body top)")
+    pressure: Any = opt(None, "fluid: initial pressure, a number or an expression of x, y, z (as velocity); "
+                                             "WCSPH starts from the Tait density of it (no start-up pressure wave); None = 0 "
+                                             "(or hydrostatic)", unit="Pa")
+
+
+@dataclass(frozen=True)
+class CentralForce:
+    omega: float = opt(0.0, "a body force -omega^2 (x - center) toward a point, as a harmonic potential (holds a drop "
+                            "together without walls, Monaghan & Rafiee 2013); 0 compiles it out", unit="1/s", minimum=0.0)
+    center: tuple[float, ...] | None = opt(None, "the point the central force pulls toward; None = the domain centre", unit="m")
 
 
 @dataclass(frozen=True)
@@ -103,13 +113,21 @@ class ArtificialViscosity:
 class TensileCorrection:
     enabled: bool = opt(False, "Monaghan (2000) artificial pressure against the tensile instability")
     epsilon: float = opt(0.2, "strength: R = epsilon |p| / rho^2 for negative pressures", minimum=0.0)
+    epsilon_positive: float = opt(0.0, "R = this x p / rho^2 for positive pressures (Monaghan 2000 and PySPH / DualSPHysics "
+                                       "take 0.01). Off: it does not separate the pairs the dam break forms at its walls "
+                                       "(dx a/40 to t = 0.7 s: closest 0.016 dx either way) and let 1 particle through the "
+                                       "floor where 0 (with the wall mirror) let none", minimum=0.0)
     n: float = opt(4.0, "exponent of f = W(r)/W(dx)", positive=True)
 
 
 @dataclass(frozen=True)
 class Shifting:
     enabled: bool | None = opt(None, "particle shifting (Lind et al. 2012 form, free-surface aware); None = on for ISPH, off for WCSPH")
-    coefficient: float = opt(2.0, "A in the shift dr_a = -D grad C_a with D = A h |v_a| dt (Skillen et al. 2013)", minimum=0.0)
+    model: str = opt("skillen", "the speed in the diffusion coefficient D = A h U dt: the particle's own |v_a| (Skillen et al. "
+                                "2013; vanishes at stagnation points, where a stretched lattice then stays as it is) or the "
+                                "largest fluid speed of the step (Sun et al. 2017, delta+-SPH: CFL Ma (2h)^2 = 4 h U dt)",
+                     choices=("skillen", "sun"))
+    coefficient: float = opt(2.0, "A in the shift dr_a = -D grad C_a with D = A h U dt (U: see shifting.model)", minimum=0.0)
     max_shift: float = opt(0.1, "cap on |dr_a| per step, as a fraction of dx", positive=True)
 
 
@@ -231,13 +249,15 @@ class Probe:
 class Metric:
     type: str = opt("hydrostatic", "reference metric written to summary.json errors",
                     choices=("hydrostatic", "surge_front", "taylor_green", "poiseuille", "cavity", "column_fall",
-                             "probe_pressure"))
+                             "probe_pressure", "drop_ellipse"))
     depth: float | None = opt(None, "hydrostatic: fluid depth H", unit="m", positive=True)
     floor: float = opt(0.0, "hydrostatic / surge_front: floor height", unit="m")
     column_width: float | None = opt(None, "surge_front: column width a", unit="m", positive=True)
     origin: float = opt(0.0, "surge_front: x of the wall the column leans on", unit="m")
     t_max: float = opt(3.0, "surge_front: last dimensionless time T compared")
     lid_velocity: float = opt(1.0, "cavity: lid speed", unit="m/s")
+    strain_rate: float = opt(0.0, "drop_ellipse: A0 of the first fluid_sphere's initial velocity A0 (x - c, c - y) about its "
+                                  "centre c", unit="1/s")
     width: float = opt(1.0, "poiseuille / cavity: channel or cavity width", unit="m")
     probe: str = opt("", "probe_pressure: name of the probe (see probes) compared with the reference")
     reference: str = opt("dambreak_buchner2002_pressure_probe_pysph",
@@ -256,6 +276,7 @@ class Config:
     gravity: tuple[float, ...] | None = opt(None, "body acceleration (dim numbers); None or zeros compiles it out", unit="m/s^2")
     gravity_ramp: float = opt(0.0, "time over which gravity rises smoothly from 0 to its value, "
                                    "g (1 - cos(pi t / t_ramp)) / 2 (Adami et al. 2012 damping); 0 = off", unit="s", minimum=0.0)
+    central_force: CentralForce = opt(factory=CentralForce, doc="harmonic body force toward a point")
     domain: Domain = opt(factory=Domain, doc="simulation box")
     particles: Particles = opt(factory=Particles, doc="discretisation")
     fluid: Fluid = opt(factory=Fluid, doc="material")
@@ -277,6 +298,14 @@ class Config:
     def h(self) -> float:
         """Smoothing length h = hdx * dx."""
         return self.particles.hdx * self.particles.dx
+
+    @property
+    def central_force_center(self) -> tuple[float, ...]:
+        """The point of the central force: `central_force.center`, or the domain centre."""
+        c = self.central_force.center
+        if c is None:
+            return tuple(0.5 * (lo + hi) for lo, hi in zip(self.domain.lo, self.domain.hi))
+        return c
 
     @property
     def periodic(self) -> tuple[bool, ...]:
@@ -592,6 +621,7 @@ def validate(cfg: Config, source: str) -> None:
     _check_vec(cfg.domain.hi, d, "domain.hi", source)
     _check_vec(cfg.domain.periodic, d, "domain.periodic", source)
     _check_vec(cfg.gravity, d, "gravity", source)
+    _check_vec(cfg.central_force.center, d, "central_force.center", source)
     for a in range(d):
         if not cfg.domain.hi[a] > cfg.domain.lo[a]:
             raise ConfigError("domain.hi must exceed domain.lo on every axis", source=source, key="domain.hi")
@@ -621,6 +651,12 @@ def validate(cfg: Config, source: str) -> None:
                     raise ConfigError(f"expected a number or an expression string, got {comp!r}", source=source,
                                       key=f"{key}.velocity[{j}]")
             _check_velocity_expressions(b, d, key, source)
+        if b.pressure is not None:
+            if isinstance(b.pressure, bool) or not isinstance(b.pressure, (int, float, str)):
+                raise ConfigError(f"expected a number or an expression string, got {b.pressure!r}", source=source,
+                                  key=f"{key}.pressure")
+            if isinstance(b.pressure, str):
+                _check_expression(b.pressure, d, f"{key}.pressure", source)
         if b.type == "wall_box":
             thick = b.layers * cfg.particles.dx
             outer_lo = [b.lo[a] - thick for a in range(d)]
@@ -676,21 +712,25 @@ def validate(cfg: Config, source: str) -> None:
 
 def _check_velocity_expressions(b: Body, dim: int, key: str, source: str) -> None:
     """Refuse unsafe or broken velocity expressions now (not after Taichi starts): evaluate each at one point."""
+    for j, comp in enumerate(b.velocity):
+        if isinstance(comp, str):
+            _check_expression(comp, dim, f"{key}.velocity[{j}]", source)
+
+
+def _check_expression(expr: str, dim: int, key: str, source: str) -> None:
+    """Evaluate an expression of x, y, z at one point; a failure is the user's, refused as a ConfigError."""
     import numpy as np
 
     from .geometry import evaluate_expression
     coords = {name: np.zeros(1) for name in "xyz"[:dim]}
-    for j, comp in enumerate(b.velocity):
-        if not isinstance(comp, str):
-            continue
-        try:
-            with np.errstate(all="ignore"):
-                evaluate_expression(comp, coords, "", np.random.default_rng(0))
-        except ConfigError as e:
-            raise ConfigError(str(e), source=source, key=f"{key}.velocity[{j}]") from None
-        except Exception as e:  # noqa: BLE001 (a whitelisted expression failing is the user's to fix)
-            raise ConfigError(f"cannot evaluate expression '{comp}': {type(e).__name__}: {e}", source=source,
-                              key=f"{key}.velocity[{j}]") from None
+    try:
+        with np.errstate(all="ignore"):
+            evaluate_expression(expr, coords, "", np.random.default_rng(0))
+    except ConfigError as e:
+        raise ConfigError(str(e), source=source, key=key) from None
+    except Exception as e:  # noqa: BLE001 (a whitelisted expression failing is the user's to fix)
+        raise ConfigError(f"cannot evaluate expression '{expr}': {type(e).__name__}: {e}", source=source,
+                          key=key) from None
 
 
 def _body_bounds(b: Body) -> tuple[tuple[float, ...], tuple[float, ...]]:

@@ -20,6 +20,7 @@ class Features:
     moving_walls: bool
     no_slip: bool
     gravity: bool
+    central_force: bool
     laminar_viscosity: bool
     artificial_viscosity: bool
     density: str                  # continuity | summation (WCSPH); ISPH always uses summation for its source
@@ -29,6 +30,7 @@ class Features:
     periodic: tuple[bool, ...]
     reflecting: bool
     shifting: bool
+    shifting_model: str           # skillen | sun (solvers/shifting.py)
     clamp_negative_pressure: bool
 
     @classmethod
@@ -52,6 +54,7 @@ class Features:
             moving_walls=walls and moving,
             no_slip=walls and cfg.walls.slip == "no_slip",
             gravity=cfg.has_gravity,
+            central_force=cfg.central_force.omega > 0.0,
             laminar_viscosity=cfg.fluid.nu > 0.0,
             artificial_viscosity=(alpha > 0.0 or beta > 0.0),
             density=wc.density if cfg.solver == "wcsph" else "summation",
@@ -61,6 +64,7 @@ class Features:
             periodic=tuple(cfg.periodic),
             reflecting=cfg.reflecting.enabled,
             shifting=cfg.shifting_enabled,
+            shifting_model=cfg.shifting.model,
             clamp_negative_pressure=cfg.solver == "wcsph" and wc.clamp_negative_pressure,
         )
 
@@ -79,6 +83,8 @@ class Features:
             terms.append("morris_laminar_viscosity")
         if self.gravity:
             terms.append("body_force")
+        if self.central_force:
+            terms.append("central_force")
         if self.walls:
             terms.append("adami_walls:" + ("no_slip" if self.no_slip else "free_slip"))
         if any(self.periodic):
@@ -86,7 +92,7 @@ class Features:
         if self.reflecting:
             terms.append("reflecting_faces")
         if self.shifting:
-            terms.append("particle_shifting")
+            terms.append(f"particle_shifting:{self.shifting_model}")
         if self.clamp_negative_pressure:
             terms.append("clamp_negative_pressure")
         return terms

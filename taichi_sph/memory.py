@@ -83,19 +83,21 @@ def _inside(axis: np.ndarray, lo: float, hi: float) -> int:
 
 
 def _sphere_count(dim: int, radius: float, dx: float) -> int:
-    """Lattice points within radius - dx/2 of the centre, counted along rows of the last axis."""
+    """Cell-centred lattice points (geometry.lattice_sphere) within radius - dx/2 of the centre,
+    counted along rows of the last axis."""
     n = int(math.ceil(radius / dx))
-    if (2 * n + 1) ** (dim - 1) > 4_000_000:
+    if (2 * n) ** (dim - 1) > 4_000_000:
         unit = {1: 2.0, 2: math.pi, 3: 4.0 / 3.0 * math.pi}[dim]
         return int(unit * (radius - 0.5 * dx) ** dim / dx ** dim)
     r_keep = radius - 0.5 * dx + 1e-12
-    offs = np.arange(-n, n + 1) * dx
+    offs = (np.arange(-n, n) + 0.5) * dx
     if dim == 1:
         return int(np.count_nonzero(np.abs(offs) <= r_keep))
     grids = np.meshgrid(*([offs] * (dim - 1)), indexing="ij")
     rest = r_keep * r_keep - sum(g.ravel() ** 2 for g in grids)
-    half = np.floor(np.sqrt(np.maximum(rest, 0.0)) / dx + 1e-9)
-    return int(np.sum(np.where(rest >= 0.0, 2 * np.minimum(half, n) + 1, 0)))
+    # points (j + 1/2) dx with j >= 0 up to sqrt(rest): floor(sqrt(rest) / dx + 1/2) on each side
+    half = np.floor(np.sqrt(np.maximum(rest, 0.0)) / dx + 0.5 + 1e-9)
+    return int(np.sum(np.where(rest >= 0.0, 2 * np.minimum(half, n), 0)))
 
 
 def body_points(body: Body, dx: float) -> tuple[int, int]:
@@ -158,6 +160,7 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
         floats += d
     if f.shifting:
         floats += d
+        ints += cfg.shifting.model == "sun"  # its surface flags
     if cfg.solver == "wcsph":
         floats += (f.density == "continuity") + (f.density_diffusion != "none")
         if f.walls and cfg.wcsph.wall_clearance is not None:

@@ -31,7 +31,9 @@ def test_lattice_sphere_volume(dim):
     pts = lattice_sphere((0.0,) * dim, r, dx)
     volume = len(pts) * dx ** dim
     exact = {1: 2 * r, 2: math.pi * r * r, 3: 4 / 3 * math.pi * r ** 3}[dim]
-    assert abs(volume - exact) / exact < 0.06
+    # points within R - dx/2 (every particle's cell inside the sphere): short by ~dim dx / (2R), 6.1% in 3D
+    # on the cell-centred lattice (5.8% when a point sat on the centre)
+    assert abs(volume - exact) / exact < 0.07
     assert np.linalg.norm(pts, axis=1).max() < r
 
 

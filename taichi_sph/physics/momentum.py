@@ -1,4 +1,23 @@
-"""Momentum-equation terms: pressure gradient, tensile correction, viscosities (per particle pair)."""
+"""Momentum-equation terms: pressure gradient, tensile correction, viscosities (per particle pair).
+
+Tensile correction on the dam break (issue 15: "switched on, drives the dam break unstable at t = 0.46 s").
+With the code as it stands the default dam_break_2d (a/80, h = 2 dx, Wendland C2) with the correction on
+runs to t = 1 s without a blow-up and with the same front (raw / shifted RMS 0.2443 / 0.0397), but fluid
+particles end up up to 0.2 dx through the floor under the thin tongue from t = 0.45 s on (in 10 of the 12
+0.05 s snapshots from then; 3 at t = 1 s, one of them through the back wall): that is the issue's 0.46 s, and a wall
+crossing is what the validation and the stability battery call unstable. One cause: the wall neighbours
+took their artificial pressure R_w from their Adami pressure, which is clamped at >= 0 (walls push, never
+pull), so R_w = 0 and a fluid particle in tension was pushed toward the wall by its fluid neighbours' R and
+not back. A wall particle is ghost fluid mirroring the particle it faces: it now takes that particle's R
+(solvers/wcsph.py). At a/40 to t = 0.7 s: 1 particle through the floor before, 0 after; at a/80 to
+t = 0.7 s, crossings in 2 of the 6 snapshots from t = 0.45 s instead of 4 of 6 (2 particles at 0.7 s,
+0.03-0.12 dx deep, front 0.2441 / 0.0398): better, not fixed, so the correction stays off by default. The
+particles that cross are at positive pressure, pressed onto the floor by neighbours in tension above them.
+Monaghan's positive-pressure term (`epsilon_positive` 0.01) did not help: the pairs the dam break forms
+along its walls (closest 0.006-0.016 dx, with or without the correction) are beyond any kernel-gradient
+repulsion (grad W -> 0 as r -> 0 for the Wendland kernels), and it let 1 particle through at a/40 with
+the mirror.
+"""
 
 import taichi as ti
 
@@ -10,14 +29,20 @@ def symmetric_pressure_gradient(m_b: float, p_a: float, rho_a: float, p_b: float
 
 
 @ti.func
+def monaghan_artificial_pressure(p: float, rho: float, epsilon: float, epsilon_positive: float) -> float:
+    """Monaghan (2000) R = epsilon |p| / rho^2 for p < 0, epsilon_positive p / rho^2 for p >= 0 (his 0.01)."""
+    return ti.select(p < 0.0, -epsilon * p, epsilon_positive * p) / (rho * rho)
+
+
+@ti.func
 def monaghan_tensile_correction(m_b: float, p_a: float, rho_a: float, p_b: float, rho_b: float, w_ab: float,
-                                w_dx: float, epsilon: float, n: float, grad_w):
-    """Monaghan (2000) artificial pressure: -m_b (R_a + R_b) f^n grad W, f = W(r) / W(dx),
-    R = epsilon |p| / rho^2 for p < 0 (else 0.01 p / rho^2 style small term omitted)."""
-    r_a = ti.select(p_a < 0.0, -epsilon * p_a / (rho_a * rho_a), 0.0)
-    r_b = ti.select(p_b < 0.0, -epsilon * p_b / (rho_b * rho_b), 0.0)
+                                w_dx: float, epsilon: float, epsilon_positive: float, n: float, grad_w):
+    """Monaghan (2000) artificial pressure: -m_b (R_a + R_b) f^n grad W, f = W(r) / W(dx): a repulsion
+    that grows as a pair closes (f > 1 inside dx) and fades at the lattice spacing and beyond."""
+    r_ab = (monaghan_artificial_pressure(p_a, rho_a, epsilon, epsilon_positive)
+            + monaghan_artificial_pressure(p_b, rho_b, epsilon, epsilon_positive))
     f = w_ab / w_dx
-    return -m_b * (r_a + r_b) * ti.pow(f, n) * grad_w
+    return -m_b * r_ab * ti.pow(f, n) * grad_w
 
 
 @ti.func

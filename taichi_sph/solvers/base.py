@@ -12,6 +12,7 @@ from ..geometry import FLUID, WALL, ParticleArrays, lattice_kernel_sum, max_neig
 from ..kernels import make_kernel
 from ..neighbors import NeighborSearch
 from ..particles import ParticleFields, np_float
+from ..physics.body_force import harmonic_central_force
 from ..physics.eos import tait_density, tait_pressure
 from ..physics.walls import adami_wall_pressure, adami_wall_velocity, kinematic_wall_condition
 from .clock import DeviceClock
@@ -111,6 +112,11 @@ class SolverBase:
                                       group=None if self.wall_wall_pairs else self.particles.kind)
         self.x_ref = ti.Vector.field(cfg.dim, float, self.n) if self.skin > 0.0 else None
         self.builds = 0
+        self.central_omega = cfg.central_force.omega
+        self.central_center = None
+        if f.central_force:
+            self.central_center = ti.Vector.field(cfg.dim, float, shape=())
+            self.central_center[None] = list(cfg.central_force_center)
         self.gravity = ti.Vector.field(cfg.dim, float, shape=())
         self.gravity[None] = list(cfg.gravity_vector)
         if cfg.gravity_ramp > 0.0:
@@ -250,6 +256,16 @@ class SolverBase:
                 P.p[a] = self.tait(P.rho[a])
 
     @ti.func
+    def body_force(self, x):
+        """Acceleration of the body forces at x: gravity and the harmonic central force, as compiled in."""
+        acc = ti.Vector.zero(float, self.dim)
+        if ti.static(self.features.gravity):
+            acc = self.gravity[None]  # assigned, not added to zero: 0 + g is not folded (-0.0), bits would differ
+        if ti.static(self.features.central_force):
+            acc += harmonic_central_force(x, self.central_center[None], self.central_omega)
+        return acc
+
+    @ti.func
     def adami_wall_pass(self, serial: ti.template() = False):
         """Wall pressure (and density, and no-slip ghost velocity) from the fluid around each wall particle."""
         P = self.particles
@@ -272,9 +288,7 @@ class SolverBase:
                         sum_rho_rw += P.rho[b] * r_ab * w
                         if ti.static(self.features.no_slip):
                             sum_vw += P.v[b] * w
-                body_acc = ti.Vector.zero(float, self.dim)  # (g - a_wall); walls do not accelerate
-                if ti.static(self.features.gravity):
-                    body_acc = self.gravity[None]
+                body_acc = self.body_force(xa)  # (g - a_wall); walls do not accelerate
                 # walls push, never pull: a negative extrapolated pressure (wall above a free surface)
                 # would glue fluid to the wall
                 p = ti.max(adami_wall_pressure(sum_pw, sum_rho_rw, sum_w, body_acc), 0.0)

@@ -42,7 +42,21 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
    are fixed planes of each wall body's own shape; a sliding wall's velocity does not move them (it used
    to: on the lid-driven cavity the box's side faces, given to the lid's particles with the lid's
    velocity, pushed the fluid under the lid; physics/walls.py says how).
-6. Particle shifting (on by default for ISPH).
+6. Particle shifting (on by default for ISPH; solvers/shifting.py).
+
+The void at the centre of a stretching body (issue 15; configs/elliptical_drop_2d.yaml, u = A0 (x, -y)):
+the corrected pressure gradient has no pairwise repulsion, so nothing but shifting re-orders particles
+that the flow strains, and Skillen's shift D = A h |v_a| dt is zero at the stagnation point at the centre.
+The centre stays an affinely stretched lattice (columns ever further apart of particles ever closer
+together) inside a shifted, isotropic rest; the seam between the two tears: with the scene's settings and
+`shifting.model: skillen`, void particles (interior, kernel sum below the free-surface threshold, so
+Dirichlet p = 0 inside the fluid) from t = 0.26 s, 35 at t = 0.36 s, a hole several dx wide at the centre,
+and a particle thrown out of the domain at t = 0.377 s. A particle row on the mirror line x = 0 (the
+circle's lattice had one) made it worse: no force or shift can move it off the line, and the summation
+density along it reached +15% (cfl 0.25, blend 0.1). Fixed by `shifting.model: sun` (the flow's largest
+speed in D, Sun et al. 2017), on in the drop scenes, and a cell-centred fluid_sphere lattice
+(geometry.lattice_sphere): no void, min pair 0.78 dx, shape error 0.7%. tests/test_drops.py runs the
+stretched drop to t = 0.3 s and asserts no void, the pair distance and the density bound.
 
 Divergence and Laplacian are divided by their value on the initial lattice for a linear (quadratic)
 field: the Wendland C2 gradient sum is 0.974, not 1, at h = 1.3 dx.
@@ -133,12 +147,6 @@ class ISPHSolver(SolverBase):
         self.pure_neumann_steps = 0
         self.ppe_seconds = 0.0  # wall time in the PPE solves (assembly excluded)
 
-    @ti.func
-    def body_acc(self):
-        g = ti.Vector.zero(float, self.dim)
-        if ti.static(self.features.gravity):
-            g = self.gravity[None]
-        return g
 
     # -- 1. density and free surface ------------------------------------------------------
     @ti.kernel
@@ -182,12 +190,12 @@ class ISPHSolver(SolverBase):
                         dist = r_ba.norm()
                         if P.kind[b] == FLUID and in_surface_cone(r_ba, dist, outward, self.support):
                             surface = False
-                self.grad_p_estimate[a] = self.rho0 * (self.body_acc() - acc)
+                self.grad_p_estimate[a] = self.rho0 * (self.body_force(xa) - acc)
                 role = UNKNOWN
                 if surface:
                     role = DIRICHLET
                     P.p[a] = self.p_background + free_surface_pressure(self.rho0, self.surface_depth, grad_c,
-                                                                       self.body_acc(), acc)
+                                                                       self.body_force(xa), acc)
                     ti.atomic_add(E.scalars[N_DIRICHLET], 1.0)
                 if rho < SURFACE_CANDIDATE * self.rho0:  # (physics/free_surface.py) below it: floored at rho0
                     rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
@@ -203,9 +211,9 @@ class ISPHSolver(SolverBase):
         NS = self.nsearch
         for a in range(self.n):
             if P.kind[a] == FLUID:
-                acc = self.body_acc()
+                xa, va = P.x[a], P.v[a]
+                acc = self.body_force(xa)
                 if ti.static(self.features.laminar_viscosity or self.features.artificial_viscosity):
-                    xa, va = P.x[a], P.v[a]
                     for k in range(NS.count[a]):
                         b = NS.neighbors[a, k]
                         r_ab = NS.pair_vector(xa, P.x[b])
@@ -242,7 +250,7 @@ class ISPHSolver(SolverBase):
             if E.role[a] == UNKNOWN:
                 xa, va = P.x[a], P.v[a]
                 vol_a = P.mass[a] / self.rho0
-                body = self.body_acc()
+                body = self.body_force(xa)
                 div_v = 0.0
                 diag = 0.0
                 diag_dirichlet = 0.0
@@ -396,7 +404,7 @@ class ISPHSolver(SolverBase):
             self.wall_pressure()
         self.correct_and_move(dt)
         if self.shifting is not None:
-            self.shifting.apply(dt)
+            self.shifting.apply(dt, s["max_speed"])
         self.t += dt
         self.step_count += 1
         return dt

@@ -1,41 +1,114 @@
-"""Particle shifting (Lind et al. 2012; Skillen et al. 2013 diffusion coefficient), free-surface aware."""
+"""Particle shifting (Lind et al. 2012 with the free-surface projection), used by ISPH and WCSPH.
+
+dr_a = -D grad C_a,  grad C_a = sum_b V_b (1 + 0.2 (W_ab / W(dx))^4) grad_a W_ab,  D = A h U dt,
+capped at `shifting.max_shift` dx. At the free surface (kernel sum below `isph.free_surface_threshold`
+x the lattice sum) only the component tangent to the surface is kept (normal ~ grad C): the surface is
+not pushed outward.
+
+The speed U (`shifting.model`):
+- `skillen` (Skillen et al. 2013): the particle's own |v_a|. It vanishes at a stagnation point. In a
+  body stretched by u = A0 (x, -y) (configs/elliptical_drop_2d.yaml) the centre is one, so the lattice
+  there is stretched as it is, into columns 2 dx apart of particles dx/2 apart, while the faster
+  particles around it are shifted into a disordered isotropic arrangement. At the seam between the
+  two, and along the symmetry line x = 0 (which no shift crosses), the summation density climbs: ISPH
+  reached a 15% density error and a hole in the particle arrangement opened around the centre.
+- `sun` (Sun et al. 2017, delta+-SPH): the largest fluid speed of the step, so the whole body is kept
+  isotropic, stagnation points included. Their dr = -CFL Ma (2h)^2 grad C with CFL = c0 dt / h is
+  D = 4 h U_max dt: A = 4 here. As theirs, the projection acts in the whole surface band (a surface
+  particle or one with a surface particle within its support), with the normal of the kernel sum
+  n = -sum_b V_b grad_a W_ab / |.| rather than grad C: `skillen` projects the outer layer only, and
+  there on grad C itself, which leaves it no shift at all; the layers below are pushed outward
+  (-grad C points out of the fluid there), and a WCSPH body, whose continuity density does not see
+  a shift, grew in area (stretching drop at t = 0.4 s: +6.6% with the outer-layer projection).
+"""
 
 
+import numpy as np
 import taichi as ti
 
 from ..geometry import FLUID, lattice_kernel_sum
 
 
+@ti.func
+def shifting_diffusion(coefficient: float, h: float, speed: float, dt: float) -> float:
+    """D = A h U dt: the diffusion coefficient of the shift (Skillen et al. 2013 with U = |v_a|)."""
+    return coefficient * h * speed * dt
+
+
+@ti.func
+def lind_concentration_gradient_term(vol_b: float, w: float, w_dx: float, grad_w):
+    """V_b (1 + 0.2 (W_ab / W(dx))^4) grad_a W_ab: one pair of grad C with Lind et al.'s anti-pairing term."""
+    return vol_b * (1.0 + 0.2 * ti.pow(w / w_dx, 4.0)) * grad_w
+
+
+@ti.func
+def tangential_part(dr, normal):
+    """dr - (dr . n) n: the shift along a free surface of unit normal n."""
+    return dr - dr.dot(normal) * normal
+
+
+@ti.func
+def no_outward_part(dr, outward):
+    """dr without its component along `outward` when that is positive: a shift may go into the fluid or
+    along the surface, not out of it."""
+    return dr - ti.max(dr.dot(outward), 0.0) * outward
+
+
 @ti.data_oriented
 class ParticleShifting:
-    """dr_a = -D grad C_a, grad C_a = sum_b V_b grad W_ab (1 + 0.2 (W_ab / W(dx))^4), D = A h |v_a| dt.
-
-    Particles whose kernel sum falls below `free_surface_threshold` x the full-lattice sum are at the
-    free surface: their shift keeps only the component tangent to the surface (normal ~ grad C).
-    """
+    """The shift of every fluid particle (see the module docstring): `apply(dt, max_speed)`."""
 
     def __init__(self, solver, coefficient: float) -> None:
         cfg = solver.cfg
         self.solver = solver
         self.coefficient = coefficient
+        self.global_speed = cfg.shifting.model == "sun"
         self.max_shift = cfg.shifting.max_shift * cfg.particles.dx
         self.lattice_sum = lattice_kernel_sum(cfg, solver.kernel.w_np)
         self.threshold = cfg.isph.free_surface_threshold
-        import numpy as np
         self.w_dx = float(solver.kernel.w_np(np.array([cfg.particles.dx]))[0])
         self.shift = solver.particles.add_vector()
+        # surface flags of this step (sun: the projection band is found from the neighbours' flags)
+        self.surface = solver.particles.add_scalar(dtype=ti.i32) if self.global_speed else None
+
+    @ti.func
+    def kernel_sum(self, a):
+        """sum_b V_b W_ab (a included) over this step's neighbour lists; 1 on a full lattice x lattice_sum."""
+        S = self.solver
+        P = S.particles
+        NS = S.nsearch
+        xa = P.x[a]
+        ksum = P.mass[a] / P.rho[a] * S.kernel.w0
+        for k in range(NS.count[a]):
+            b = NS.neighbors[a, k]
+            ksum += P.mass[b] / P.rho[b] * S.kernel.w(NS.pair_vector(xa, P.x[b]).norm())
+        return ksum
 
     @ti.kernel
-    def compute(self, dt: float):
-        self.compute_pass(dt, False)
+    def compute(self, dt: float, max_speed: float):
+        self.flag_surface_pass(False)
+        self.compute_pass(dt, max_speed, False)
 
     @ti.kernel
     def move(self):
         self.move_pass(False)
 
     @ti.func
-    def compute_pass(self, dt, serial: ti.template()):
-        """shift_a for every fluid particle (the pass a solver's own kernels call)."""
+    def flag_surface_pass(self, serial: ti.template()):
+        """surface[a] = 1 for fluid particles whose kernel sum is below the free-surface threshold (sun only)."""
+        if ti.static(self.global_speed):
+            S = self.solver
+            P = S.particles
+            ti.loop_config(serialize=serial)
+            for a in range(S.live_n()):
+                self.surface[a] = 0
+                if P.kind[a] == FLUID:
+                    if self.kernel_sum(a) < self.threshold * self.lattice_sum:
+                        self.surface[a] = 1
+
+    @ti.func
+    def compute_pass(self, dt, max_speed, serial: ti.template()):
+        """shift_a for every fluid particle (the pass a solver's own kernels call; run flag_surface_pass first)."""
         S = self.solver
         P = S.particles
         NS = S.nsearch
@@ -45,20 +118,34 @@ class ParticleShifting:
             if P.kind[a] == FLUID:
                 xa = P.x[a]
                 grad_c = ti.Vector.zero(float, S.dim)
+                grad_sum = ti.Vector.zero(float, S.dim)
                 ksum = P.mass[a] / P.rho[a] * S.kernel.w0
+                band = 0
                 for k in range(NS.count[a]):
                     b = NS.neighbors[a, k]
                     r_ab = NS.pair_vector(xa, P.x[b])
                     r = r_ab.norm()
                     w = S.kernel.w(r)
                     vol_b = P.mass[b] / P.rho[b]
+                    grad_w = S.kernel.grad_w(r_ab, r)
                     ksum += vol_b * w
-                    grad_c += vol_b * (1.0 + 0.2 * ti.pow(w / self.w_dx, 4.0)) * S.kernel.grad_w(r_ab, r)
-                d = self.coefficient * S.h * P.v[a].norm() * dt
-                dr = -d * grad_c
-                if ksum < self.threshold * self.lattice_sum:
-                    n = grad_c.normalized(1e-12)
-                    dr -= dr.dot(n) * n
+                    grad_sum += vol_b * grad_w
+                    grad_c += lind_concentration_gradient_term(vol_b, w, self.w_dx, grad_w)
+                    if ti.static(self.global_speed):
+                        if P.kind[b] == FLUID and r < S.support:
+                            band = ti.max(band, self.surface[b])
+                speed = P.v[a].norm()
+                if ti.static(self.global_speed):
+                    speed = max_speed
+                dr = -shifting_diffusion(self.coefficient, S.h, speed, dt) * grad_c
+                if ti.static(self.global_speed):
+                    if ksum < self.threshold * self.lattice_sum:
+                        dr = tangential_part(dr, grad_sum.normalized(1e-12))
+                    elif band == 1:
+                        dr = no_outward_part(dr, -grad_sum.normalized(1e-12))
+                else:
+                    if ksum < self.threshold * self.lattice_sum:
+                        dr = tangential_part(dr, grad_c.normalized(1e-12))
                 length = dr.norm()
                 if length > self.max_shift:
                     dr *= self.max_shift / length
@@ -74,7 +161,8 @@ class ParticleShifting:
             if P.kind[a] == FLUID:
                 P.x[a] += self.shift[a]
 
-    def apply(self, dt: float) -> None:
-        """Shift fluid particles using the neighbour lists of this step (positions moved by at most 0.1 dx)."""
-        self.compute(dt)
+    def apply(self, dt: float, max_speed: float = 0.0) -> None:
+        """Shift fluid particles using the neighbour lists of this step (each by at most max_shift);
+        `max_speed`: the largest fluid speed, the U of the `sun` model."""
+        self.compute(dt, max_speed)
         self.move()

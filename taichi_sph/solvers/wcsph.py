@@ -44,7 +44,7 @@ class WCSPHSolver(SolverBase):
         self.alpha, self.beta = cfg.artificial_viscosity
         self.delta_h_c0 = cfg.wcsph.density_diffusion.delta * self.h * self.c0
         tc = cfg.wcsph.tensile_correction
-        self.tc_epsilon, self.tc_n = tc.epsilon, tc.n
+        self.tc_epsilon, self.tc_epsilon_positive, self.tc_n = tc.epsilon, tc.epsilon_positive, tc.n
         self.w_dx = float(self.kernel.w_np(np.array([self.dx]))[0])
         self.shifting = ParticleShifting(self, cfg.shifting.coefficient) if f.shifting else None
         self.schedule = LoopSchedule()
@@ -107,8 +107,15 @@ class WCSPHSolver(SolverBase):
                     v_ab = va - P.v[b]
                     acc += symmetric_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
                     if ti.static(self.features.tensile_correction):
-                        acc += monaghan_tensile_correction(m_b, p_a, rho_a, P.p[b], rho_b, self.kernel.w(r), self.w_dx,
-                                                           self.tc_epsilon, self.tc_n, grad_w)
+                        # a wall particle is ghost fluid mirroring particle a: its artificial pressure is a's
+                        # (its Adami pressure is clamped at >= 0, so its own R would leave fluid in tension
+                        # pushed by its fluid neighbours toward the wall and not back)
+                        p_tc, rho_tc = P.p[b], rho_b
+                        if not is_fluid_b:
+                            p_tc, rho_tc = p_a, rho_a
+                        acc += monaghan_tensile_correction(m_b, p_a, rho_a, p_tc, rho_tc, self.kernel.w(r), self.w_dx,
+                                                           self.tc_epsilon, self.tc_epsilon_positive, self.tc_n,
+                                                           grad_w)
                     if ti.static(self.features.density_diffusion != "none"):
                         if is_fluid_b:
                             drho_ab = rho_b - rho_a
@@ -128,8 +135,8 @@ class WCSPHSolver(SolverBase):
                         if ti.static(self.features.no_slip) or is_fluid_b:
                             acc += morris_laminar_viscosity(m_b, self.nu, rho_a, rho_b, v_visc, r_ab, r2, self.eta2,
                                                             grad_w)
-                if ti.static(self.features.gravity):
-                    acc += self.gravity[None]
+                if ti.static(self.features.gravity or self.features.central_force):
+                    acc += self.body_force(xa)
                 P.acc[a] = acc
                 if ti.static(self.kinematic_walls):
                     self.near_wall[a] = near_wall
@@ -296,14 +303,16 @@ class WCSPHSolver(SolverBase):
         else:
             self.drift_pass(dt_kick, dt, True, serial)
         if ti.static(self.features.shifting and self.features.integrator != "leapfrog"):
-            self.shifting.compute_pass(dt, serial)
+            self.shifting.flag_surface_pass(serial)
+            self.shifting.compute_pass(dt, self.stats[0], serial)
             self.shifting.move_pass(serial)
         self.rebuild_pass(serial)
         self.rates_passes(serial)
         if ti.static(self.features.integrator == "leapfrog"):
             self.kick_pass(0.5 * dt, dt, False, serial)
             if ti.static(self.features.shifting):
-                self.shifting.compute_pass(dt, serial)
+                self.shifting.flag_surface_pass(serial)
+                self.shifting.compute_pass(dt, self.stats[0], serial)
                 self.shifting.move_pass(serial)
         ti.loop_config(serialize=True)
         for _ in range(1):

@@ -1,0 +1,99 @@
+"""Free drops without walls (issue 15): the ellipse reference, the lattice of a fluid_sphere, the shifting
+models' ingredients, and short stretched-drop runs per solver with asserted shape and order numbers."""
+
+import math
+
+import numpy as np
+import pytest
+
+from taichi_sph.config import bundled_configs_dir, load_config
+from taichi_sph.geometry import build_particles, lattice_sphere
+from taichi_sph.reference import ellipse_drop_semi_axis, first_extrema_times
+from taichi_sph.simulation import Simulation
+
+
+def test_ellipse_reference_stretching_drop():
+    """Monaghan (1994): a(0) = R, area kept; a grows toward linear growth as A decays (A0 t = 0.8: a ~ 2R)."""
+    R, A0 = 0.5, 2.0
+    a = ellipse_drop_semi_axis([0.0, 0.05, 0.4], R, A0)
+    assert a[0] == pytest.approx(R)
+    assert a[1] == pytest.approx(R * math.exp(A0 * 0.05), rel=2e-3)  # early: u = A0 x nearly constant
+    assert a[2] / R == pytest.approx(1.99930, abs=1e-4)
+    # time reversal symmetry of the ODE: integrating with -A0 from a(t) ... is the same as the start
+    assert ellipse_drop_semi_axis([0.4], R, A0)[0] == pytest.approx(a[2], rel=1e-10)  # order does not matter
+
+
+def test_ellipse_reference_small_oscillation_period():
+    """In the harmonic potential -omega^2 r small ellipse oscillations have the period 2 pi / (sqrt 2 omega)."""
+    R, omega = 0.5, 4.0
+    t = np.linspace(0.0, 1.5, 3001)
+    a = ellipse_drop_semi_axis(t, R, 0.02, omega)  # amplitude 0.5%
+    t_max, t_min = first_extrema_times(t, a)
+    assert 2.0 * (t_min - t_max) == pytest.approx(2.0 * math.pi / (math.sqrt(2.0) * omega), rel=1e-3)
+
+
+@pytest.mark.parametrize("dim", [1, 2, 3])
+def test_fluid_sphere_has_no_particle_on_a_symmetry_plane(dim):
+    """Cell-centred: a particle on a mirror plane of the body is held there by symmetry (the ISPH drop's
+    dense line at x = 0)."""
+    pts = lattice_sphere((0.25,) * dim, 0.3, 0.02)
+    assert np.abs(pts - 0.25).min() == pytest.approx(0.01)
+    assert np.allclose(np.sort(pts[:, 0]), np.sort(0.5 - pts[:, 0]))  # still symmetric
+
+
+def test_body_pressure_expression_sets_the_wcsph_density():
+    cfg = load_config(bundled_configs_dir() / "elliptical_drop_2d.yaml")
+    arrays = build_particles(cfg)
+    r2 = (arrays.x ** 2).sum(axis=1)
+    assert np.allclose(arrays.p, 500.0 * (1.0 - 4.0 * r2))
+    assert arrays.rho.max() > cfg.fluid.rho0  # Tait density of p > 0
+
+
+def stretched_drop(solver, tmp_path, t_end, *overrides):
+    cfg = load_config(bundled_configs_dir() / "elliptical_drop_2d.yaml",
+                      [f"solver={solver}", f"time.t_end={t_end}", *overrides])
+    return Simulation(cfg, tmp_path, render=False, quiet=True).run().summary
+
+
+# WCSPH with delta+-SPH shifting (sun, surface band projected): without shifting the compressed semi-axis was
+# 13.7% too wide at t = 0.4 s (rows 2 dx apart, 0.4 dx within a row); with the outer-layer projection only,
+# 5.8% (the layers below pushed out). The scene's cfl 0.05 is for ISPH: WCSPH runs at 0.25 here.
+# ISPH: with the Skillen shift (zero at the stagnation point at the centre) the centre stayed a stretched
+# lattice and a void opened there: 12 void particles at t = 0.28 s (this scene, `shifting.model=skillen`),
+# the run unstable at 0.38 s.
+@pytest.mark.parametrize("solver, t_end, overrides, density_bound", [
+    ("wcsph", 0.2, ("time.cfl=0.25",), 0.03),
+    ("isph", 0.3, (), 0.06),
+])
+def test_stretched_drop(tmp_path, solver, t_end, overrides, density_bound):
+    """A short stretched-drop run: shape within 1% of the ellipse ODE, no clumping, no void, density bound."""
+    s = stretched_drop(solver, tmp_path, t_end, *overrides)
+    assert s["status"] == "ok"
+    assert s["errors"]["shape_error"] < 0.01
+    assert s["max_density_error"] < density_bound
+    order = s["particle_order"]
+    assert order["min_pair_distance_dx"] >= 0.5
+    assert order["max_void_particles"] == 0
+
+
+def test_oscillating_drop_wcsph_short(tmp_path):
+    """The central force holds the drop; the first quarter period (a grows to 1.17 R by t = 0.2 s) follows
+    the ODE within 1%."""
+    cfg = load_config(bundled_configs_dir() / "oscillating_drop_2d.yaml",
+                      ["solver=wcsph", "time.t_end=0.2", "time.cfl=0.25"])
+    s = Simulation(cfg, tmp_path, render=False, quiet=True).run().summary
+    assert s["status"] == "ok"
+    assert "central_force" in s["features"]
+    assert s["errors"]["shape_error"] < 0.01
+    assert s["errors"]["a_over_R_end"] == pytest.approx(s["errors"]["a_ref_over_R_end"], rel=0.01)
+    assert s["particle_order"]["min_pair_distance_dx"] >= 0.5
+
+
+def test_bundled_ellipse_table_matches_the_ode():
+    from taichi_sph.reference import load_reference
+    data = load_reference("drop_ellipse_analytic")
+    assert any("Monaghan (1994)" in line for line in data.source)
+    for scene, a0, omega in (("elliptical_drop_2d", 2.0, 0.0), ("oscillating_drop_2d", 1.0, 4.0)):
+        rows = data["scene"] == scene
+        a = ellipse_drop_semi_axis(data["t"][rows], 0.5, a0, omega) / 0.5
+        assert np.allclose(a, data["a_over_R"][rows], atol=1e-7)
