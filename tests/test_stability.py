@@ -151,10 +151,12 @@ def test_markdown_and_map_from_synthetic_result(tmp_path):
 def test_five_times_the_cfl_limit_is_classified_unstable(tmp_path):
     """A tiny undamped drop (no artificial viscosity, no density diffusion; guard raised to 0.3 since
     its impact alone reaches ~0.23): stable at the adaptive step, refused a priori at a fixed dt 5x
-    the CFL limit, and when run anyway it blows up."""
+    the CFL limit, and when run anyway it blows up. Without the kinematic wall condition: with it, the
+    condition holds at the floor the particles whose escape made this run unstable, and it ends "stable"
+    (measured when `wcsph.wall_clearance` arrived)."""
     overrides = ("particles.dx=0.04", "domain.lo=[-0.2, -0.2]", "domain.hi=[0.8, 1.2]", "time.t_end=0.3",
                  "wcsph.artificial_viscosity.alpha=0", "wcsph.density_diffusion.model=none",
-                 "guards.max_density_error=0.3")
+                 "guards.max_density_error=0.3", "wcsph.wall_clearance=null")
     adaptive = st.run_one(st.case_config(st.Case("tiny_1x", "drop.yaml", overrides), "wcsph"), tmp_path / "1x")
     assert adaptive["verdict"] == "stable", adaptive
     cfg = st.case_config(st.Case("tiny_5x", "drop.yaml", overrides, dt_factor=5.0, expect="unstable"), "wcsph")
@@ -174,7 +176,7 @@ def test_battery_on_a_process_pool_assembles_rows_from_the_case_folders(tmp_path
 
     overrides = ("particles.dx=0.04", "domain.lo=[-0.2, -0.2]", "domain.hi=[0.8, 1.2]", "time.t_end=0.3",
                  "wcsph.artificial_viscosity.alpha=0", "wcsph.density_diffusion.model=none",
-                 "guards.max_density_error=0.3")
+                 "guards.max_density_error=0.3", "wcsph.wall_clearance=null")
     cases = (st.Case("tiny_1x", "drop.yaml", overrides),
              st.Case("tiny_5x", "drop.yaml", overrides, dt_factor=5.0, expect="unstable"))
     result = st.run_stability(tmp_path, cases=cases, solvers=("wcsph",), with_map=False, log=lambda m: None,
