@@ -102,8 +102,8 @@ class WCSPHSolver(SolverBase):
                     grad_w = self.kernel.grad_w(r_ab, r)
                     m_b, rho_b = P.mass[b], P.rho[b]
                     is_fluid_b = P.kind[b] == FLUID
-                    if not is_fluid_b:
-                        near_wall = 1
+                    # branch-free: an `if` that sets a flag in this loop made the f32 pass 3x slower
+                    near_wall = ti.max(near_wall, ti.select(is_fluid_b, 0, 1))
                     v_ab = va - P.v[b]
                     acc += symmetric_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
                     if ti.static(self.features.tensile_correction):
