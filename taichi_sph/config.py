@@ -50,6 +50,10 @@ class Particles:
     skin: float | str = opt(AUTO, "Verlet skin as a fraction of the support radius: lists cover support x (1 + skin) and "
                                   "are rebuilt only when a particle may have moved skin/2; 'auto' = 0.15 for WCSPH, "
                                   "0 (rebuild every step) for ISPH")
+    neighbor_access: str = opt("lists", "how pair loops reach neighbours: 'lists' = a stored Verlet list per particle "
+                                        "(max_neighbors i32 each); 'cells' = a walk over the 3^dim cells around the "
+                                        "particle in the cell-sorted arrays, no lists stored (WCSPH only; same sums "
+                                        "in the same order, more candidates tested)", choices=("lists", "cells"))
 
 
 @dataclass(frozen=True)
@@ -698,6 +702,9 @@ def validate(cfg: Config, source: str) -> None:
     sk = cfg.particles.skin
     if sk != AUTO and (isinstance(sk, str) or not 0.0 <= sk <= 1.0):
         raise ConfigError(f"must be 'auto' or a fraction in [0, 1], got {sk!r}", source=source, key="particles.skin")
+    if cfg.particles.neighbor_access == "cells" and cfg.solver != "wcsph":
+        raise ConfigError("'cells' is for WCSPH only: ISPH assembles its pressure equation from the stored lists; "
+                          "use 'lists'", source=source, key="particles.neighbor_access")
     mn = cfg.particles.max_neighbors
     if mn != AUTO and (isinstance(mn, str) or mn < 1):
         raise ConfigError(f"must be a positive integer or 'auto', got {mn!r}", source=source, key="particles.max_neighbors")

@@ -136,7 +136,9 @@ def particle_counts(cfg: Config) -> tuple[int, int, int]:
 
 # ----------------------------------------------------------------------------- bytes
 def neighbour_capacity(cfg: Config) -> int:
-    """Neighbour-list slots per particle, as SolverBase sizes them (support x (1 + skin))."""
+    """Neighbour-list slots per particle, as SolverBase sizes them (support x (1 + skin)); 0 with access 'cells'."""
+    if cfg.particles.neighbor_access != "lists":
+        return 0
     if cfg.particles.max_neighbors != AUTO:
         return int(cfg.particles.max_neighbors)
     radius = support_factor(cfg.particles.kernel) * cfg.h * (1.0 + cfg.skin_fraction)

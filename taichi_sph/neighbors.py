@@ -15,6 +15,22 @@ Every step `NeighborSearch.build(x, fields)` does, all in Taichi kernels and O(N
    contiguous range of the sorted particles). A list holds at most max_neighbors entries;
    `max_count()` reports the untruncated maximum and `overflowed()` says when lists were cut.
 
+Neighbour access (`particles.neighbor_access`; every pair loop is written against `slots`/`span`/`at`,
+so both compile from the same loop bodies and visit the same neighbours in the same order):
+- 'lists' (default): step 5 stores the list; a pair loop reads count[a] and one i32 per neighbour.
+  Bytes per fluid particle-step, WCSPH (force, continuity and wall passes; N = neighbours within the list
+  radius, support x 1.15: ~28 in 2D at h = 1.3 dx, ~51 in 3D at support 2 dx): 3 x 4 N of indices
+  (~340 B in 2D, ~610 B in 3D) plus the rebuild's 4 N written every ~10-20 steps, on top of the gathered
+  neighbour data (x, v, rho, p, mass, kind: ~40 B per neighbour in 3D f32, mostly cache hits once sorted).
+- 'cells': no list is stored (saves 4 x max_neighbors B per particle: 0.5-1 KB in 3D); a pair loop walks
+  the 3**(dim-1) rows of 3 cells around the cell the particle was sorted into at the last build (cells
+  of the list radius, so the Verlet skin still defers rebuilds) and tests each candidate's distance:
+  ~(3 x 1.15 support / dx)**dim candidates (~80 in 2D, ~330 in 3D at support 2 dx) of 4-12 B each per
+  pass, read contiguously (the layout a GPU coalesces; what the Taichi SPH demo does), 2.7x the arithmetic.
+Measured on the 2-core CPU (PySPH's dam-break scene to t = 0.1 s, f32, one thread): lists 0.66 s,
+cells 1.79 s; hence lists by default on the CPU. On a GPU the choice is the `bench --report` rows
+"wcsph" against "wcsph-cells" (not yet run on one). ISPH needs the lists (its pressure equation's rows).
+
 Cells: on a non-periodic axis the cell size is the support radius and the grid covers
 [lo - support, hi + support]; particles outside are clamped into the edge cells and counted by
 `escaped()` (their own lists may then miss neighbours that are out there with them). On a
@@ -40,6 +56,9 @@ def _present(value) -> bool:
     """`value is not None`, callable inside ti.static (Taichi scope has no `is not`)."""
     return value is not None
 
+
+# How pair loops reach a particle's neighbours (see `slots`/`span`/`at`).
+ACCESS = ("lists", "cells")
 
 # Upper bound on the number of cells (two i32 arrays of this size are allocated).
 MAX_CELLS = 1 << 28
@@ -67,6 +86,7 @@ class NeighborSearch:
         periodic: Sequence[bool],
         max_neighbors: int,
         group=None,
+        access: str = "lists",
     ) -> None:
         if dim not in (1, 2, 3):
             raise ConfigError(f"dimension must be 1, 2 or 3, got {dim}")
@@ -79,11 +99,15 @@ class NeighborSearch:
             raise ConfigError(f"support radius must be positive, got {support_radius}")
         if any(not h > l for l, h in zip(lo, hi)):
             raise ConfigError(f"domain is empty: lo={lo}, hi={hi}")
+        if access not in ACCESS:
+            raise ConfigError(f"unknown neighbour access '{access}'; allowed: {', '.join(ACCESS)}")
         if n < 1 or max_neighbors < 1:
             raise ValueError(f"need n >= 1 and max_neighbors >= 1, got n={n}, max_neighbors={max_neighbors}")
 
         self.dim = dim
         self.n = int(n)
+        self.access = access
+        self.lists = access == "lists"
         self.max_neighbors = int(max_neighbors)
         self.support_radius = float(support_radius)
         self.periodic = periodic
@@ -124,8 +148,9 @@ class NeighborSearch:
             strides[d] = strides[d + 1] * n_cells[d + 1]
         self._strides = tuple(strides)
 
-        self.count = ti.field(ti.i32, self.n)
-        self.neighbors = ti.field(ti.i32, (self.n, self.max_neighbors))
+        # the lists (count, neighbors) exist only with access 'lists'; 'cells' walks the sorted cells instead
+        self.count = ti.field(ti.i32, self.n) if self.lists else None
+        self.neighbors = ti.field(ti.i32, (self.n, self.max_neighbors)) if self.lists else None
         self.cell_id = ti.field(ti.i32, self.n)
         self.order = ti.field(ti.i32, self.n)
         self.cell_start = ti.field(ti.i32, self.total_cells + 1)
@@ -195,16 +220,99 @@ class NeighborSearch:
         self._stats_cache = None
 
     def max_count(self) -> int:
-        """Largest number of neighbours of one particle in the last build (before truncation)."""
+        """Largest number of neighbours of one particle in the last build (before truncation); 0 when
+        no lists are built (access 'cells')."""
         return self._read_stats()[0]
 
     def overflowed(self) -> bool:
         """True when some particle had more than max_neighbors neighbours (its list is truncated)."""
-        return self.max_count() > self.max_neighbors
+        return self.lists and self.max_count() > self.max_neighbors
 
     def escaped(self) -> int:
         """Particles outside [lo, hi] on a non-periodic axis, or not finite, in the last build."""
         return self._read_stats()[1]
+
+    # -- neighbour access: every pair loop reads
+    #        for s in range(NS.slots()):
+    #            begin, end = NS.span(a, s)
+    #            for k in range(begin, end):
+    #                b = NS.at(a, k)
+    #    lists: one slot, k over the stored list of a; cells: 3 slots per row of 3 cells along the last
+    #    axis (3**(dim-1) rows around the cell a was sorted into at the last build), k over particles.
+    @ti.func
+    def slots(self):
+        """Number of candidate ranges of a particle: 1 (its list) or 3 per row of cells."""
+        return ti.static(1 if self.lists else 3 * 3 ** (self.dim - 1))
+
+    @ti.func
+    def span(self, a, s):
+        """Candidate range [begin, end) number s of particle a: its whole list, or with 'cells' for row
+        r = s // 3 of its 3**dim cells: part 0 = the row's particles (up to a in a's own row), part 1 = those
+        after a in its own row (empty elsewhere), part 2 = the wrapped cell of a periodic last axis."""
+        begin, end = 0, 0
+        if ti.static(self.lists):
+            end = self.count[a]
+        else:
+            last = ti.static(self.dim - 1)
+            nc_last = ti.static(self.n_cells[last])
+            row, part = s // 3, s % 3
+            cell = self.cell_id[a]
+            cj = ti.Vector.zero(ti.i32, self.dim)
+            own = True
+            inside = True
+            for d in ti.static(range(self.dim)):
+                cj[d] = (cell // ti.static(self._strides[d])) % ti.static(self.n_cells[d])
+            for d in ti.static(range(last)):
+                o = (row // ti.static(3 ** (last - 1 - d))) % 3 - 1
+                own = own and o == 0
+                c = cj[d] + o
+                if ti.static(self.periodic[d]):
+                    c = (c + ti.static(self.n_cells[d])) % ti.static(self.n_cells[d])
+                elif c < 0 or c >= ti.static(self.n_cells[d]):
+                    inside = False
+                cj[d] = c
+            if inside:
+                base = self._linear(cj) - cj[last]  # the last axis has stride 1
+                if part == 2:
+                    if ti.static(self.periodic[last]):
+                        wrapped = -1  # n_cells >= 3, so at most one end wraps
+                        if cj[last] == 0:
+                            wrapped = nc_last - 1
+                        elif cj[last] == nc_last - 1:
+                            wrapped = 0
+                        if wrapped >= 0:
+                            begin = self.cell_start[base + wrapped]
+                            end = self.cell_start[base + wrapped + 1]
+                else:
+                    first = ti.max(cj[last] - 1, 0)
+                    final = ti.min(cj[last] + 1, nc_last - 1)
+                    begin = self.cell_start[base + first]
+                    end = self.cell_start[base + final + 1]
+                    if own:  # skip a itself: part 0 ends before it, part 1 starts after it
+                        if part == 0:
+                            end = a
+                        else:
+                            begin = a + 1
+                    elif part == 1:
+                        end = begin
+        return begin, end
+
+    @ti.func
+    def at(self, a, k):
+        """Candidate k of particle a's current span: its k-th list entry, or particle k itself."""
+        b = k
+        if ti.static(self.lists):
+            b = self.neighbors[a, k]
+        return b
+
+    @ti.func
+    def listed(self, r_ab):
+        """Would the pair be in a list (|r_ab| < the list radius)? Always true for a list's own entries; a
+        test for the cells' candidates, for the few uses that are not weighted by the kernel."""
+        inside = True
+        if ti.static(not self.lists):
+            inside = r_ab.dot(r_ab) < ti.static(self.support_radius * self.support_radius)
+        return inside
 
     @ti.func
     def pair_vector(self, xi, xj):
@@ -484,11 +592,12 @@ class NeighborSearch:
 
     @ti.func
     def _find_pass(self, x: ti.template(), serial: ti.template(), gate: ti.template() = None):
-        ti.loop_config(serialize=serial)
-        for i in range(self._reach(self.n, gate)):
-            found = self._gather_neighbors(x, i)
-            self.count[i] = ti.min(found, self.max_neighbors)
-            ti.atomic_max(self._stats[0], found)
+        if ti.static(self.lists):
+            ti.loop_config(serialize=serial)
+            for i in range(self._reach(self.n, gate)):
+                found = self._gather_neighbors(x, i)
+                self.count[i] = ti.min(found, self.max_neighbors)
+                ti.atomic_max(self._stats[0], found)
 
 
 @ti.data_oriented

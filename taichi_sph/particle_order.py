@@ -198,26 +198,32 @@ class OrderProbe:
                 xa = P.x[a]
                 sum_w = S.kernel.w0
                 grad_c = ti.Vector.zero(float, S.dim)
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    r_ab = NS.pair_vector(xa, P.x[b])
-                    r = r_ab.norm()
-                    sum_w += S.kernel.w(r)
-                    grad_c += S.kernel.grad_w(r_ab, r)
-                    if P.kind[b] == FLUID:
-                        ti.atomic_min(self.closest[0], r)
-                    else:
-                        ti.atomic_min(self.closest[1], r)
+                for s in range(NS.slots()):
+                    k0, k1 = NS.span(a, s)
+                    for k in range(k0, k1):
+                        b = NS.at(a, k)
+                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
+                            r_ab = NS.pair_vector(xa, P.x[b])
+                            r = r_ab.norm()
+                            sum_w += S.kernel.w(r)
+                            grad_c += S.kernel.grad_w(r_ab, r)
+                            if P.kind[b] == FLUID:
+                                ti.atomic_min(self.closest[0], r)
+                            else:
+                                ti.atomic_min(self.closest[1], r)
                 c = kernel_sum_ratio(sum_w, self.volume, self.lattice_sum)
                 flag = c < self.threshold
                 if not flag and c < SURFACE_CANDIDATE:
                     outward = -grad_c.normalized(1e-12)
                     flag = True
-                    for k in range(NS.count[a]):
-                        b = NS.neighbors[a, k]
-                        r_ba = -NS.pair_vector(xa, P.x[b])
-                        if P.kind[b] == FLUID and in_surface_cone(r_ba, r_ba.norm(), outward, S.support):
-                            flag = False
+                    for s in range(NS.slots()):
+                        k0, k1 = NS.span(a, s)
+                        for k in range(k0, k1):
+                            b = NS.at(a, k)
+                            if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
+                                r_ba = -NS.pair_vector(xa, P.x[b])
+                                if P.kind[b] == FLUID and in_surface_cone(r_ba, r_ba.norm(), outward, S.support):
+                                    flag = False
                 kernel_sum[a] = c
                 surface[a] = ti.select(flag, 1, 0)
 

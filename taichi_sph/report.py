@@ -1,7 +1,8 @@
 """`taichi-sph bench --report`: the one-call speed report (meant for a GPU: `--arch cuda`).
 
 1. Throughput: WCSPH and ISPH on the 2D and 3D dam break at each particle count (default 100k, 1M,
-   4M): particle-steps/s, ms per step, kernel launches and host read-backs per step, PPE iterations.
+   4M): particle-steps/s, ms per step, kernel launches and host read-backs per step, PPE iterations;
+   WCSPH with both neighbour accesses (stored lists, and the walk over sorted cells: neighbors.py).
 2. Real time: every bundled scene (configs/*.yaml) with its own solver, and the dam breaks with both,
    stepped for at most `--budget` wall seconds (or to t_end): the real-time factor RTF = simulated
    seconds per wall second of stepping (RTF >= 1: real time). Compile time is reported apart.
@@ -28,14 +29,17 @@ BOTH_SOLVERS = ("dam_break_2d", "dam_break_3d")
 
 
 def report_cases(counts: list[int], dims: list[int], steps: int) -> list[dict]:
-    """Throughput specs: (solver, dim, particles)."""
+    """Throughput specs: (solver, dim, particles), and WCSPH once more with neighbour access 'cells' (the
+    walk over sorted cells instead of stored lists: the measurement that chooses a GPU's default)."""
     cases = []
-    for solver in ("wcsph", "isph"):
+    for solver, access in (("wcsph", "lists"), ("wcsph", "cells"), ("isph", "lists")):
         for dim in dims:
             for n in counts:
-                cases.append({"label": f"{solver} {dim}D {n:,}", "solver": solver, "dim": dim, "target": n,
-                              "spec": {"dim": dim, "overrides": _scene_overrides(dim, n) + [f"solver={solver}"],
-                                       "steps": steps}})
+                name = solver if access == "lists" else f"{solver}-{access}"
+                cases.append({"label": f"{name} {dim}D {n:,}", "solver": solver, "access": access, "dim": dim,
+                              "target": n,
+                              "spec": {"dim": dim, "overrides": _scene_overrides(dim, n) + [
+                                  f"solver={solver}", f"particles.neighbor_access={access}"], "steps": steps}})
     return cases
 
 

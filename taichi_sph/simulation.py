@@ -378,7 +378,8 @@ class Simulation:
             "c0": solver.c0 if solver.name == "wcsph" else None,
             "features": solver.features.compiled_in(),
             "arch": current_arch_name(), "precision": cfg.precision,
-            "neighbours_max": solver.nsearch.max_count(), "neighbour_capacity": solver.max_neighbors,
+            "neighbours_max": solver.nsearch.max_count() if solver.nsearch.lists else None,
+            "neighbour_capacity": solver.max_neighbors if solver.nsearch.lists else None,
             "last_checkpoint_t": loop.last_checkpoint_t, "resumed_at": loop.resumed_at,
             "warnings": self.warnings,
         }

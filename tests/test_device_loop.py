@@ -110,3 +110,30 @@ def test_skipped_steps_leave_the_state_alone():
     for k, v in by_id(s2).items():
         np.testing.assert_array_equal(v, by_id(s)[k], err_msg=k)
     assert s2.stats_now == s.stats_now and s2.t == s.t
+
+
+@pytest.mark.parametrize("over", [{}, {"shifting": {"enabled": True, "model": "sun"}, "fluid": {
+    "reference_speed": 2.0, "c0_factor": 10.0, "nu": 1e-4}, "domain": {"lo": [-0.1, -0.1], "hi": [0.7, 0.6],
+                                                                        "periodic": [True, False]}}])
+def test_cell_walk_runs_the_same_flow_as_the_lists(over):
+    """neighbor_access 'cells' visits the listed neighbours in list order (tests/test_neighbors.py), so the
+    flow is the same; only the compiler's fast-math contractions may differ (f32 rounding, ~1e-6 m)."""
+    runs = {}
+    for access in ("lists", "cells"):
+        cfg = column_cfg(**over, particles={"dx": 0.02, "hdx": 1.3, "kernel": "wendland_c2", "neighbor_access": access})
+        s = fresh(cfg, True)
+        s.advance(80)
+        runs[access] = (s, by_id(s))
+    (a, sa), (b, sb) = runs["lists"], runs["cells"]
+    assert b.nsearch.neighbors is None  # no list stored
+    assert a.step_count == b.step_count == 80 and a.builds == b.builds > 1
+    assert abs(a.t - b.t) < 1e-6 * a.t
+    np.testing.assert_allclose(sb["x"], sa["x"], atol=2e-5)
+    np.testing.assert_allclose(sb["v"], sa["v"], atol=2e-3)
+    assert np.abs(sa["v"]).max() > 0.1  # the column did move
+
+
+def test_cell_walk_is_refused_for_isph():
+    from taichi_sph.errors import ConfigError
+    with pytest.raises(ConfigError, match="WCSPH only"):
+        column_cfg(solver="isph", particles={"dx": 0.02, "neighbor_access": "cells"})

@@ -353,3 +353,57 @@ def test_group_pairs_are_left_out():
         maybe = {j for j in np.where(np.abs(dist[i] - 0.1) <= 1e-6)[0]}
         assert expected <= found <= expected | maybe
         assert not any(g[i] and g[j] for j in found)
+
+
+# ---------------------------------------------------------------- access 'cells': the walk over the sorted cells
+
+
+@ti.kernel
+def _walk(ns: ti.template(), x: ti.template(), found: ti.template(), count: ti.template()):
+    """What a pair loop sees with access 'cells': the candidates within the list radius, in walk order."""
+    for a in range(ns.n):
+        c = 0
+        for s in range(ns.slots()):
+            k0, k1 = ns.span(a, s)
+            for k in range(k0, k1):
+                b = ns.at(a, k)
+                if ns.listed(ns.pair_vector(x[a], x[b])):
+                    if c < found.shape[1]:
+                        found[a, c] = b
+                    c += 1
+        count[a] = c
+
+
+@pytest.mark.parametrize(
+    "dim, periodic",
+    [(1, (False,)), (2, (False, False)), (3, (False, False, False)), (1, (True,)), (2, (True, False)),
+     (2, (True, True)), (3, (False, True, False)), (3, (True, True, True))],
+)
+def test_cell_walk_visits_the_list_entries_in_list_order(dim, periodic):
+    """Every pair loop's sum is the same with access 'cells' as with 'lists': the walk visits exactly the
+    listed neighbours (self never, each once, across periodic faces too), in the lists' order."""
+    n, support = OPEN_CASES[dim]
+    lo = np.array([-0.5, 0.0, 0.25][:dim])
+    hi = lo + np.array([1.0, 0.93, 0.87][:dim])
+    x = vec_field(np.random.default_rng(20 + dim).uniform(lo, hi, (n, dim)))
+    lists = NeighborSearch(dim, n, lo, hi, support, periodic, 128)
+    cells = NeighborSearch(dim, n, lo, hi, support, periodic, 128, access="cells")
+    assert cells.neighbors is None and cells.count is None  # nothing stored
+    lists.build(x, [])
+    cells.build(x, [])  # same order: the sort of sorted particles is the identity
+    np.testing.assert_array_equal(cells.order.to_numpy(), np.arange(n))
+    found = ti.field(ti.i32, (n, 128))
+    count = ti.field(ti.i32, n)
+    _walk(cells, x, found, count)
+    c_lists, c_cells = lists.count.to_numpy(), count.to_numpy()
+    np.testing.assert_array_equal(c_cells, c_lists)
+    assert c_lists.mean() > 10  # the case has neighbours to find
+    nb_lists, nb_cells = lists.neighbors.to_numpy(), found.to_numpy()
+    for i in range(n):
+        np.testing.assert_array_equal(nb_cells[i, : c_cells[i]], nb_lists[i, : c_lists[i]])
+    assert not cells.overflowed() and cells.max_count() == 0
+
+
+def test_unknown_access_is_an_error():
+    with pytest.raises(ConfigError, match="allowed: lists, cells"):
+        NeighborSearch(2, 10, [0, 0], [1, 1], 0.1, (False, False), 8, access="verlet")

@@ -109,7 +109,8 @@ class SolverBase:
         self.max_neighbors = max_neighbors_for(cfg, self.list_radius)
         self.nsearch = NeighborSearch(cfg.dim, self.n, cfg.domain.lo, cfg.domain.hi, self.list_radius,
                                       f.periodic, self.max_neighbors,
-                                      group=None if self.wall_wall_pairs else self.particles.kind)
+                                      group=None if self.wall_wall_pairs else self.particles.kind,
+                                      access=cfg.particles.neighbor_access)
         self.x_ref = ti.Vector.field(cfg.dim, float, self.n) if self.skin > 0.0 else None
         self.builds = 0
         self.central_omega = cfg.central_force.omega
@@ -163,14 +164,16 @@ class SolverBase:
         xa = P.x[a]
         out = v
         cut = 0
-        for k in range(NS.count[a]):
-            b = NS.neighbors[a, k]
-            if P.kind[b] == WALL:
-                distance = xa.dot(self.wall_normal[b]) - self.wall_offset[b]
-                if distance > -0.5 * self.dx:
-                    w, c = kinematic_wall_condition(out, self.wall_normal[b], distance, self.wall_clearance, dt)
-                    out = w
-                    cut = ti.max(cut, c)
+        for s in range(NS.slots()):
+            k0, k1 = NS.span(a, s)
+            for k in range(k0, k1):
+                b = NS.at(a, k)
+                if P.kind[b] == WALL and NS.listed(NS.pair_vector(xa, P.x[b])):
+                    distance = xa.dot(self.wall_normal[b]) - self.wall_offset[b]
+                    if distance > -0.5 * self.dx:
+                        w, c = kinematic_wall_condition(out, self.wall_normal[b], distance, self.wall_clearance, dt)
+                        out = w
+                        cut = ti.max(cut, c)
         return out, cut
 
     def kinematic_walls_summary(self) -> dict:
@@ -232,10 +235,13 @@ class SolverBase:
             if P.kind[a] == FLUID:
                 xa = P.x[a]
                 rho = P.mass[a] * self.kernel.w0
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    r = NS.pair_vector(xa, P.x[b]).norm()
-                    rho += P.mass[b] * self.kernel.w(r)
+                for s in range(NS.slots()):
+                    k0, k1 = NS.span(a, s)
+                    for k in range(k0, k1):
+                        b = NS.at(a, k)
+                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
+                            r = NS.pair_vector(xa, P.x[b]).norm()
+                            rho += P.mass[b] * self.kernel.w(r)
                 P.rho[a] = rho * self.inv_lattice_sum
 
     @ti.func
@@ -278,16 +284,19 @@ class SolverBase:
                 sum_pw = 0.0
                 sum_rho_rw = ti.Vector.zero(float, self.dim)
                 sum_vw = ti.Vector.zero(float, self.dim)
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    if P.kind[b] == FLUID:
-                        r_ab = NS.pair_vector(xa, P.x[b])
-                        w = self.kernel.w(r_ab.norm())
-                        sum_w += w
-                        sum_pw += P.p[b] * w
-                        sum_rho_rw += P.rho[b] * r_ab * w
-                        if ti.static(self.features.no_slip):
-                            sum_vw += P.v[b] * w
+                for s in range(NS.slots()):
+                    k0, k1 = NS.span(a, s)
+                    for k in range(k0, k1):
+                        b = NS.at(a, k)
+                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
+                            if P.kind[b] == FLUID:
+                                r_ab = NS.pair_vector(xa, P.x[b])
+                                w = self.kernel.w(r_ab.norm())
+                                sum_w += w
+                                sum_pw += P.p[b] * w
+                                sum_rho_rw += P.rho[b] * r_ab * w
+                                if ti.static(self.features.no_slip):
+                                    sum_vw += P.v[b] * w
                 body_acc = self.body_force(xa)  # (g - a_wall); walls do not accelerate
                 # walls push, never pull: a negative extrapolated pressure (wall above a free surface)
                 # would glue fluid to the wall

@@ -79,9 +79,12 @@ class ParticleShifting:
         NS = S.nsearch
         xa = P.x[a]
         ksum = P.mass[a] / P.rho[a] * S.kernel.w0
-        for k in range(NS.count[a]):
-            b = NS.neighbors[a, k]
-            ksum += P.mass[b] / P.rho[b] * S.kernel.w(NS.pair_vector(xa, P.x[b]).norm())
+        for s in range(NS.slots()):
+            k0, k1 = NS.span(a, s)
+            for k in range(k0, k1):
+                b = NS.at(a, k)
+                if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
+                    ksum += P.mass[b] / P.rho[b] * S.kernel.w(NS.pair_vector(xa, P.x[b]).norm())
         return ksum
 
     @ti.kernel
@@ -121,19 +124,22 @@ class ParticleShifting:
                 grad_sum = ti.Vector.zero(float, S.dim)
                 ksum = P.mass[a] / P.rho[a] * S.kernel.w0
                 band = 0
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    r_ab = NS.pair_vector(xa, P.x[b])
-                    r = r_ab.norm()
-                    w = S.kernel.w(r)
-                    vol_b = P.mass[b] / P.rho[b]
-                    grad_w = S.kernel.grad_w(r_ab, r)
-                    ksum += vol_b * w
-                    grad_sum += vol_b * grad_w
-                    grad_c += lind_concentration_gradient_term(vol_b, w, self.w_dx, grad_w)
-                    if ti.static(self.global_speed):
-                        if P.kind[b] == FLUID and r < S.support:
-                            band = ti.max(band, self.surface[b])
+                for s in range(NS.slots()):
+                    k0, k1 = NS.span(a, s)
+                    for k in range(k0, k1):
+                        b = NS.at(a, k)
+                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
+                            r_ab = NS.pair_vector(xa, P.x[b])
+                            r = r_ab.norm()
+                            w = S.kernel.w(r)
+                            vol_b = P.mass[b] / P.rho[b]
+                            grad_w = S.kernel.grad_w(r_ab, r)
+                            ksum += vol_b * w
+                            grad_sum += vol_b * grad_w
+                            grad_c += lind_concentration_gradient_term(vol_b, w, self.w_dx, grad_w)
+                            if ti.static(self.global_speed):
+                                if P.kind[b] == FLUID and r < S.support:
+                                    band = ti.max(band, self.surface[b])
                 speed = P.v[a].norm()
                 if ti.static(self.global_speed):
                     speed = max_speed

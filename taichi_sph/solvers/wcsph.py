@@ -94,47 +94,50 @@ class WCSPHSolver(SolverBase):
                 acc = ti.Vector.zero(float, self.dim)
                 drho = 0.0
                 near_wall = 0
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    r_ab = NS.pair_vector(xa, P.x[b])
-                    r2 = r_ab.dot(r_ab)
-                    r = ti.sqrt(r2)
-                    grad_w = self.kernel.grad_w(r_ab, r)
-                    m_b, rho_b = P.mass[b], P.rho[b]
-                    is_fluid_b = P.kind[b] == FLUID
-                    # branch-free: an `if` that sets a flag in this loop made the f32 pass 3x slower
-                    near_wall = ti.max(near_wall, ti.select(is_fluid_b, 0, 1))
-                    v_ab = va - P.v[b]
-                    acc += symmetric_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
-                    if ti.static(self.features.tensile_correction):
-                        # a wall particle is ghost fluid mirroring particle a: its artificial pressure is a's
-                        # (its Adami pressure is clamped at >= 0, so its own R would leave fluid in tension
-                        # pushed by its fluid neighbours toward the wall and not back)
-                        p_tc, rho_tc = P.p[b], rho_b
-                        if not is_fluid_b:
-                            p_tc, rho_tc = p_a, rho_a
-                        acc += monaghan_tensile_correction(m_b, p_a, rho_a, p_tc, rho_tc, self.kernel.w(r), self.w_dx,
-                                                           self.tc_epsilon, self.tc_epsilon_positive, self.tc_n,
-                                                           grad_w)
-                    if ti.static(self.features.density_diffusion != "none"):
-                        if is_fluid_b:
-                            drho_ab = rho_b - rho_a
-                            if ti.static(self.features.density_diffusion == "fourtakas"):
-                                drho_ab -= hydrostatic_density_difference(r_ab, self.gravity[None], self.rho0,
-                                                                          self.B, self.gamma)
-                            drho += molteni_diffusion(rho_a, rho_a + drho_ab, m_b / rho_b, r_ab, r2, self.eta2,
-                                                      self.delta_h_c0, grad_w)
-                    v_visc = v_ab
-                    if ti.static(self.features.no_slip and (self.features.laminar_viscosity or self.features.artificial_viscosity)):
-                        if not is_fluid_b:
-                            v_visc = va - self.v_ghost[b]
-                    if ti.static(self.features.artificial_viscosity):
-                        acc += monaghan_viscosity(m_b, v_visc, r_ab, r2, self.h, self.c0, 0.5 * (rho_a + rho_b),
-                                                  self.alpha, self.beta, grad_w)
-                    if ti.static(self.features.laminar_viscosity):
-                        if ti.static(self.features.no_slip) or is_fluid_b:
-                            acc += morris_laminar_viscosity(m_b, self.nu, rho_a, rho_b, v_visc, r_ab, r2, self.eta2,
-                                                            grad_w)
+                for s in range(NS.slots()):
+                    k0, k1 = NS.span(a, s)
+                    for k in range(k0, k1):
+                        b = NS.at(a, k)
+                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
+                            r_ab = NS.pair_vector(xa, P.x[b])
+                            r2 = r_ab.dot(r_ab)
+                            r = ti.sqrt(r2)
+                            grad_w = self.kernel.grad_w(r_ab, r)
+                            m_b, rho_b = P.mass[b], P.rho[b]
+                            is_fluid_b = P.kind[b] == FLUID
+                            # branch-free: an `if` that sets a flag in this loop made the f32 pass 3x slower
+                            near_wall = ti.max(near_wall, ti.select(is_fluid_b, 0, 1))
+                            v_ab = va - P.v[b]
+                            acc += symmetric_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
+                            if ti.static(self.features.tensile_correction):
+                                # a wall particle is ghost fluid mirroring particle a: its artificial pressure is a's
+                                # (its Adami pressure is clamped at >= 0, so its own R would leave fluid in tension
+                                # pushed by its fluid neighbours toward the wall and not back)
+                                p_tc, rho_tc = P.p[b], rho_b
+                                if not is_fluid_b:
+                                    p_tc, rho_tc = p_a, rho_a
+                                acc += monaghan_tensile_correction(m_b, p_a, rho_a, p_tc, rho_tc, self.kernel.w(r), self.w_dx,
+                                                                   self.tc_epsilon, self.tc_epsilon_positive, self.tc_n,
+                                                                   grad_w)
+                            if ti.static(self.features.density_diffusion != "none"):
+                                if is_fluid_b:
+                                    drho_ab = rho_b - rho_a
+                                    if ti.static(self.features.density_diffusion == "fourtakas"):
+                                        drho_ab -= hydrostatic_density_difference(r_ab, self.gravity[None], self.rho0,
+                                                                                  self.B, self.gamma)
+                                    drho += molteni_diffusion(rho_a, rho_a + drho_ab, m_b / rho_b, r_ab, r2, self.eta2,
+                                                              self.delta_h_c0, grad_w)
+                            v_visc = v_ab
+                            if ti.static(self.features.no_slip and (self.features.laminar_viscosity or self.features.artificial_viscosity)):
+                                if not is_fluid_b:
+                                    v_visc = va - self.v_ghost[b]
+                            if ti.static(self.features.artificial_viscosity):
+                                acc += monaghan_viscosity(m_b, v_visc, r_ab, r2, self.h, self.c0, 0.5 * (rho_a + rho_b),
+                                                          self.alpha, self.beta, grad_w)
+                            if ti.static(self.features.laminar_viscosity):
+                                if ti.static(self.features.no_slip) or is_fluid_b:
+                                    acc += morris_laminar_viscosity(m_b, self.nu, rho_a, rho_b, v_visc, r_ab, r2, self.eta2,
+                                                                    grad_w)
                 if ti.static(self.features.gravity or self.features.central_force):
                     acc += self.body_force(xa)
                 P.acc[a] = acc
@@ -157,11 +160,14 @@ class WCSPHSolver(SolverBase):
                 xa = P.x[a]
                 va = P.v[a]
                 drho = 0.0
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    r_ab = NS.pair_vector(xa, P.x[b])
-                    r = r_ab.norm()
-                    drho += continuity_rate(P.mass[b], va - P.v[b], self.kernel.grad_w(r_ab, r))
+                for s in range(NS.slots()):
+                    k0, k1 = NS.span(a, s)
+                    for k in range(k0, k1):
+                        b = NS.at(a, k)
+                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
+                            r_ab = NS.pair_vector(xa, P.x[b])
+                            r = r_ab.norm()
+                            drho += continuity_rate(P.mass[b], va - P.v[b], self.kernel.grad_w(r_ab, r))
                 self.drho[a] = drho
 
     @ti.func
