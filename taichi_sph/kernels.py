@@ -94,11 +94,11 @@ def _assemble(name: str, dim: int, h: float, w_formula: Formula, dw_dr_formula: 
 
     @ti.func
     def grad_w(r_vec, r: float):
-        """grad_a W(|x_a - x_b|) = dW/dr * r_vec / r, r_vec = x_a - x_b; zero at r ~ 0 and r >= support."""
-        g = r_vec * 0.0
-        if r > r_min and r < support:
-            g = r_vec * (dw_dr(r) / r)
-        return g
+        """grad_a W(|x_a - x_b|) = dW/dr * r_vec / r, r_vec = x_a - x_b; zero at r ~ 0 and r >= support.
+        Branch-free (a select): whether a listed pair is inside the support is a coin flip for the branch
+        predictor (the Verlet skin lists ~30% more pairs), which cost the f32 pair loops ~1.5x on the CPU."""
+        inside = r > r_min and r < support
+        return r_vec * ti.select(inside, dw_dr(r) / ti.max(r, r_min), 0.0)
 
     def numpy_face(formula: Formula) -> Callable[[np.ndarray], np.ndarray]:
         return lambda r: formula(np.asarray(r, dtype=np.float64), np)

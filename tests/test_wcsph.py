@@ -260,3 +260,32 @@ def test_kinematic_wall_condition_keeps_an_impact_inside_the_box():
     assert off["conservation"]["wall_crossings_max"] >= 2  # the case does test the condition
     assert on["conservation"]["wall_crossings_max"] == 0 and on["conservation"]["wall_crossings"] == 0
     assert on["kinematic_walls"]["particle_steps_cut"] > 0 and "kinematic_walls" not in off
+
+
+def test_hydrostatic_density_difference_matches_the_exact_power():
+    """Fourtakas' rho0 ((1 - e)^(1/gamma) - 1): the series used for |e| < 0.01 and the pow beyond agree with
+    the float64 power to f32 rounding, on both sides of the switch and for two gammas (the series is the more
+    accurate: no cancellation in (1 - e)^k - 1)."""
+    import taichi as ti
+    from taichi_sph.physics.density import hydrostatic_density_difference
+    rho0, b = 1000.0, 5.6e5
+    e = np.concatenate([np.linspace(-0.03, 0.03, 61), [-0.0099999, 0.0099999, 0.0100001, 1e-7, 0.0]])
+    g = np.array([0.0, -9.81])
+    dz = -e * b / (rho0 * g[1])  # r_ab = (0, dz): e = rho0 g . r_ab / B
+    out = ti.field(ti.f32, len(e))
+    z = ti.field(ti.f32, len(e))
+    z.from_numpy(dz.astype(np.float32))
+    for gamma in (7.0, 1.0):
+        @ti.kernel
+        def fill(gamma: ti.template()):
+            for i in range(len(e)):
+                out[i] = hydrostatic_density_difference(ti.Vector([0.0, z[i]]), ti.Vector([0.0, -9.81]), rho0, b, gamma)
+        fill(gamma)
+        e32 = rho0 * g[1] * dz.astype(np.float32).astype(np.float64) / b
+        exact = rho0 * ((1.0 - e32) ** (1.0 / gamma) - 1.0)
+        series = np.abs(e32) < 0.01
+        got = out.to_numpy()
+        np.testing.assert_allclose(got[series], exact[series], rtol=2e-6, atol=1e-12 * rho0)
+        # beyond the switch: pow(1 - e) - 1 cancels in f32 (relative error ~ 6e-8 / |e / gamma|), as it always did
+        np.testing.assert_allclose(got[~series], exact[~series], rtol=1e-4)
+        assert series.sum() > 20 and (~series).sum() > 20

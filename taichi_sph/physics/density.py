@@ -19,5 +19,19 @@ def molteni_diffusion(rho_a: float, rho_b: float, vol_b: float, r_ab, r2: float,
 @ti.func
 def hydrostatic_density_difference(r_ab, gravity, rho0: float, b: float, gamma: float) -> float:
     """rho^H_b - rho^H_a for a fluid at rest under gravity g (Fourtakas et al. 2019):
-    rho0 ((1 - rho0 g . r_ab / B)^(1/gamma) - 1), r_ab = x_a - x_b."""
-    return rho0 * (ti.pow(ti.max(1.0 - rho0 * gravity.dot(r_ab) / b, 1e-6), 1.0 / gamma) - 1.0)
+    rho0 ((1 - e)^(1/gamma) - 1), e = rho0 g . r_ab / B, r_ab = x_a - x_b.
+
+    Within a kernel support e = gamma g . r_ab / c0^2 is ~1e-3 (c0 = 10x the flow speed), and for |e| < 0.01
+    the binomial series to e^3 is used: remainder < |C(1/gamma, 4)| e^4 < 2.5e-9 (gamma >= 1; 2.7e-10 at
+    gamma 7), below f32 rounding. A pow per pair was 40% of the WCSPH force pass on the CPU (dam_break_2d)."""
+    e = rho0 * gravity.dot(r_ab) / b
+    k = 1.0 / gamma
+    out = 0.0
+    if ti.abs(e) < 0.01:  # every pair of a sane set-up: a predictable branch
+        c1 = -k
+        c2 = k * (k - 1.0) / 2.0
+        c3 = -c2 * (k - 2.0) / 3.0
+        out = e * (c1 + e * (c2 + e * c3))
+    else:
+        out = ti.pow(ti.max(1.0 - e, 1e-6), k) - 1.0
+    return rho0 * out

@@ -49,14 +49,11 @@ def monaghan_tensile_correction(m_b: float, p_a: float, rho_a: float, p_b: float
 def monaghan_viscosity(m_b: float, v_ab, r_ab, r2: float, h: float, c0: float, rho_mean: float, alpha: float,
                        beta: float, grad_w):
     """Monaghan (1992) artificial viscosity: -m_b Pi_ab grad W with
-    Pi_ab = (-alpha c0 mu + beta mu^2) / rho_mean, mu = h v_ab.r_ab / (r^2 + 0.01 h^2), only when v_ab.r_ab < 0."""
-    vr = v_ab.dot(r_ab)
-    acc = ti.zero(grad_w)
-    if vr < 0.0:
-        mu = h * vr / (r2 + 0.01 * h * h)
-        pi_ab = (-alpha * c0 * mu + beta * mu * mu) / rho_mean
-        acc = -m_b * pi_ab * grad_w
-    return acc
+    Pi_ab = (-alpha c0 mu + beta mu^2) / rho_mean, mu = h v_ab.r_ab / (r^2 + 0.01 h^2), only when v_ab.r_ab < 0
+    (mu = 0 otherwise: min(v_ab.r_ab, 0), no branch on the pair's sign, which the predictor cannot guess)."""
+    mu = h * ti.min(v_ab.dot(r_ab), 0.0) / (r2 + 0.01 * h * h)
+    pi_ab = (-alpha * c0 * mu + beta * mu * mu) / rho_mean
+    return -m_b * pi_ab * grad_w
 
 
 @ti.func
