@@ -439,13 +439,13 @@ class CellMultigrid:
 
     # -- the V-cycle: particle ends (called inside the CG kernels) ----------------------------------
     @ti.func
-    def restrict_particles(self, serial: ti.template()):
+    def restrict_particles(self, serial: ti.template(), live):
         """b_1 = P^T (r - A z0) (z0 = omega r / diag, the particles' pre-smoothing) and x_1 = omega D_1^-1 b_1.
         A z0 is kept in `ppe.z` (free until the post-smoothing overwrites it): the post-smoothing reuses it."""
         E = self.ppe
         NS = self.ppe.nsearch
         ti.loop_config(serialize=serial)
-        for k in range(self.active_count[0]):
+        for k in range(self.active_count[0] * live):
             _, c = self.active_cell(0, k)
             acc = 0.0
             for a in range(NS.cell_start[c], NS.cell_start[c + 1]):
@@ -478,14 +478,14 @@ class CellMultigrid:
         return acc
 
     @ti.func
-    def prolong_particles(self, serial: ti.template(), sums: ti.template()):
+    def prolong_particles(self, serial: ti.template(), sums: ti.template(), live):
         """z = u + omega (r - A u) / diag with u = z0 + s P y_1, where A u = A z0 (kept by restrict_particles)
         + s A P y_1 (`coarse_correction`): no product with the neighbour list. r . z reduced (and sum z,
         sum r with `sums`)."""
         if ti.static(sums):
-            self.ppe.sums.add(self.prolong_row, (self.rz_slot, self.z_sum_slot, self.r_sum_slot), serial, 0.0)
+            self.ppe.sums.add_live(self.prolong_row, (self.rz_slot, self.z_sum_slot, self.r_sum_slot), serial, 0.0, live)
         else:
-            self.ppe.sums.add(self.prolong_row, (self.rz_slot,), serial, 0.0)
+            self.ppe.sums.add_live(self.prolong_row, (self.rz_slot,), serial, 0.0, live)
 
     @ti.func
     def prolong_row(self, a, _):
@@ -510,27 +510,34 @@ class CellMultigrid:
 
     # -- the V-cycle: the cell levels ---------------------------------------------------------------
     def coarse_cycle(self, serial: bool) -> None:
-        """From b_1 and x_1 (set by restrict_particles) to y_1: down, coarsest solve, up. Levels large
-        enough for the thread pool get a kernel per pass; the small ones (all of them when `serial`) run
-        in one kernel on one thread: a kernel launch costs more than a small level's work."""
-        last = len(self.levels) - 1
-        first = 0 if serial else self.first_small
-        for l in range(first):
-            self.smooth_level(l, self.x)
-            self.restrict_level(l, self.small[l + 1])
-        self.small_levels_cycle(first, last)
-        for l in range(first - 1, -1, -1):
-            self.prolong_level(l)
-            self.smooth_level(l, self.y)
+        """The cell levels of one V-cycle as a kernel of its own (the CG iterations call `v_cycle` inside theirs)."""
+        self.coarse_cycle_kernel(serial)
 
-    def smooth_level(self, l: int, v) -> None:
-        """The cell_sweeps - 1 sweeps after the first, alternating between v and the scratch field."""
-        src, dst = v, self.swept
-        for _ in range(self.cell_sweeps - 1):
-            self.jacobi_sweep(l, src, dst)
-            src, dst = dst, src
-        if src is not v:
-            self.copy_level(l, src, v)
+    @ti.kernel
+    def coarse_cycle_kernel(self, serial: ti.template()):
+        self.v_cycle(serial, 1)
+
+    def first_small_level(self, serial: bool) -> int:
+        """The first level that the one-thread loop handles: all of them when `serial`."""
+        return 0 if serial else self.first_small
+
+    @ti.func
+    def v_cycle(self, serial: ti.template(), live):
+        """From b_1 and x_1 (set by restrict_particles) to y_1: down, coarsest solve, up, inside the caller's
+        kernel (one launch for the whole cycle); with `live` 0 every loop is empty. Levels large enough for
+        the thread pool get a parallel loop per pass; the small ones (all of them when `serial`) run in one
+        loop on one thread (a thread-pool round, or on a GPU a task, costs more than a small level's work)."""
+        first = ti.static(self.first_small_level(serial))
+        for l in ti.static(range(first)):
+            self.smooth_cells(l, self.x, live)
+            ti.loop_config(serialize=ti.static(self.small[l + 1]))
+            for k in range(self.active_count[l + 1] * live):
+                self.restrict_cell(l, k)
+        self.small_levels_cycle(first, ti.static(len(self.levels) - 1), live)
+        for m in ti.static(range(first)):
+            for k in range(self.active_count[first - 1 - m] * live):
+                self.prolong_cell(first - 1 - m, k)
+            self.smooth_cells(first - 1 - m, self.y, live)
 
     @ti.func
     def sweep_cell(self, l, k, src: ti.template(), dst: ti.template()):
@@ -576,49 +583,29 @@ class CellMultigrid:
                 au += a_cs * uj
         self.y[fine + c] = u + self.omega * self.dinv[fine + c] * (self.b[fine + c] - au)
 
-    @ti.kernel
-    def jacobi_sweep(self, l: ti.i32, src: ti.template(), dst: ti.template()):
-        for k in range(self.active_count[l]):
-            self.sweep_cell(l, k, src, dst)
-
-    @ti.kernel
-    def copy_level(self, l: ti.i32, src: ti.template(), dst: ti.template()):
-        for k in range(self.active_count[l]):
-            self.copy_cell(l, k, src, dst)
-
-    @ti.kernel
-    def restrict_level(self, l: ti.i32, serial: ti.template()):
-        ti.loop_config(serialize=serial)
-        for k in range(self.active_count[l + 1]):
-            self.restrict_cell(l, k)
-
-    @ti.kernel
-    def prolong_level(self, l: ti.i32):
-        for k in range(self.active_count[l]):
-            self.prolong_cell(l, k)
-
     @ti.func
-    def smooth_cells(self, l, v: ti.template()):
-        """smooth_level's sweeps inside the one-thread kernel."""
+    def smooth_cells(self, l, v: ti.template(), live):
+        """The cell_sweeps - 1 weighted-Jacobi sweeps after the first on level l, alternating between v and the
+        scratch field (parallel loops when called at a kernel's top level, else inside the caller's loop)."""
         for sweep in ti.static(range(self.cell_sweeps - 1)):
             if ti.static(sweep % 2 == 0):
-                for k in range(self.active_count[l]):
+                for k in range(self.active_count[l] * live):
                     self.sweep_cell(l, k, v, self.swept)
             else:
-                for k in range(self.active_count[l]):
+                for k in range(self.active_count[l] * live):
                     self.sweep_cell(l, k, self.swept, v)
         if ti.static(self.cell_sweeps % 2 == 0):  # an odd number of extra sweeps ended in the scratch field
-            for k in range(self.active_count[l]):
+            for k in range(self.active_count[l] * live):
                 self.copy_cell(l, k, self.swept, v)
 
-    @ti.kernel
-    def small_levels_cycle(self, first: ti.i32, last: ti.i32):
+    @ti.func
+    def small_levels_cycle(self, first, last, live):
         """The V-cycle from level `first` down to the coarsest and back, on one thread; on the coarsest level
         y = (symmetric Gauss-Seidel)^sweeps b from y = 0."""
         ti.loop_config(serialize=True)
-        for _ in range(1):
+        for _ in range(live):
             for l in range(first, last):
-                self.smooth_cells(l, self.x)
+                self.smooth_cells(l, self.x, 1)
                 for k in range(self.active_count[l + 1]):
                     self.restrict_cell(l, k)
             base, count = self.lv_offset[last], self.lv_count[last]
@@ -635,4 +622,4 @@ class CellMultigrid:
                 l = last - 1 - m
                 for k in range(self.active_count[l]):
                     self.prolong_cell(l, k)
-                self.smooth_cells(l, self.y)
+                self.smooth_cells(l, self.y, 1)
