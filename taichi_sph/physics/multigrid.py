@@ -337,15 +337,23 @@ class CellMultigrid:
     # -- operators ------------------------------------------------------------------------------------
     def assemble(self, serial: bool) -> None:
         """A_1 = P^T A P from the particles' pair coefficients, then A_{l+1} = P^T A_l P down the levels."""
-        self.galerkin_from_particles(serial)
-        self.active_boxes(len(self.levels))
-        for l in range(len(self.levels) - 1):
-            self.galerkin_coarsen(l, serial or self.small[l + 1])
-        for l in range(len(self.levels)):
-            self.collect_active(l, serial or self.small[l])
+        self.assemble_kernel(serial)
+
+    def one_thread(self, serial: bool, l: int) -> bool:
+        return serial or self.small[l]
 
     @ti.kernel
-    def collect_active(self, l: ti.i32, serial: ti.template()):
+    def assemble_kernel(self, serial: ti.template()):
+        """Every level's operator and list of non-empty cells, one launch (the levels unrolled)."""
+        self.galerkin_from_particles(serial)
+        self.active_boxes(len(self.levels))
+        for l in ti.static(range(len(self.levels) - 1)):
+            self.galerkin_coarsen(l, ti.static(self.one_thread(serial, l + 1)))
+        for l in ti.static(range(len(self.levels))):
+            self.collect_active(l, ti.static(self.one_thread(serial, l)))
+
+    @ti.func
+    def collect_active(self, l, serial: ti.template()):
         """List level l's non-empty cells of its box (in box order on one thread; in any order in parallel:
         every pass over the list computes each cell from its own inputs). An empty cell is never written by
         the V-cycle, so its iterates are zeroed here, where a coarse correction may read them."""
@@ -363,8 +371,8 @@ class CellMultigrid:
                 self.x[base + c] = 0.0
                 self.y[base + c] = 0.0
 
-    @ti.kernel
-    def active_boxes(self, n_levels: ti.i32):
+    @ti.func
+    def active_boxes(self, n_levels):
         """Each coarser level's box holds the parents of the finer box (level 1's was reduced by
         galerkin_from_particles)."""
         ti.loop_config(serialize=True)
@@ -384,7 +392,7 @@ class CellMultigrid:
         """Column of `cell_coupling` of the stencil slot s (the centre slot has none)."""
         return s if s < self.center else s - 1
 
-    @ti.kernel
+    @ti.func
     def galerkin_from_particles(self, serial: ti.template()):
         """A_1[I, I] = sum_{a in I} A_aa, A_1[I, J] = -sum_{a in I, b in J} coeff_ab; and each particle's
         coupling to the cells around its own, cell_coupling[a, J] = sum_{b in J} coeff_ab (J != I)."""
@@ -416,8 +424,8 @@ class CellMultigrid:
                     ti.atomic_min(self.box_lo[0][d], ic[d])
                     ti.atomic_max(self.box_hi[0][d], ic[d])
 
-    @ti.kernel
-    def galerkin_coarsen(self, l: ti.i32, serial: ti.template()):
+    @ti.func
+    def galerkin_coarsen(self, l, serial: ti.template()):
         """A_{l+1}[I', J'] = sum of A_l[I, J] over the children I of I' and J of J'."""
         fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
         ti.loop_config(serialize=serial)

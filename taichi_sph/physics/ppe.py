@@ -30,7 +30,7 @@ UNKNOWN, DIRICHLET, NOT_IN_PPE = 0, 1, 2
 # slots of the scalar field the kernels reduce into
 RR, BB, RZ, RZ_NEW, PQ, N_UNKNOWN, N_DIRICHLET, SUM_B, SUM_P, SUM_Z, SUM_R = range(11)
 # slots of the f64 solve state (`MatrixFreePPE.progress`): the device-side stopping test's inputs and outputs
-DONE, ITERATIONS, RESIDUAL, NORM_B, PINNED, TRIVIAL, TOLERANCE, MAX_ITERATIONS = range(8)
+DONE, ITERATIONS, RESIDUAL, NORM_B, PINNED, TRIVIAL, TOLERANCE, MAX_ITERATIONS, STARTING = range(9)
 # the first block of iterations long enough to time both CPU loop schedules (see `_choose_schedule`)
 SCHEDULE_PROBE = 8
 PPE_SOLVERS = ("mgcg", "cg", "jacobi")
@@ -136,7 +136,7 @@ class MatrixFreePPE:
             self.mg = CellMultigrid(self, multigrid.smoother_omega, multigrid.coarse_scale, multigrid.coarsest_sweeps,
                                     multigrid.cell_sweeps, UNKNOWN, (RZ_NEW, SUM_Z, SUM_R))
         self.scalars = ti.field(float, 11)
-        self.progress = ti.field(ti.f64, 8)  # the solve's state on the device (slots DONE ... MAX_ITERATIONS)
+        self.progress = ti.field(ti.f64, 9)  # the solve's state on the device (slots DONE ... STARTING)
         self.sums = RowSums(n, self.scalars, 3)  # every reduction over the particles (fixed order on the CPU)
         self.rows = PackedRows(nsearch, n, max_neighbors, self.sums)  # the pair coefficients
         # CPU: whether the iteration loops run on one thread (see `_choose_schedule`); elsewhere parallel
@@ -201,6 +201,7 @@ class MatrixFreePPE:
         the range of A, zero mean, |b|^2 recomputed); |b| = 0 -> p = 0 (or the level at pinned) and done."""
         self.progress[TOLERANCE] = tolerance
         self.progress[MAX_ITERATIONS] = max_iterations
+        self.progress[STARTING] = 1.0  # mgcg: the first launch of `mgcg_iteration` is CG's start
         for s in ti.static((DONE, ITERATIONS, PINNED, TRIVIAL)):
             self.progress[s] = 0.0
         self.progress[RESIDUAL] = 0.0
@@ -350,22 +351,20 @@ class MatrixFreePPE:
         self.sums.add_live(self.direction_row, (PQ,), serial, beta, live)
 
     @ti.func
-    def mgcg_start_row(self, a, _):
+    def mgcg_row(self, a, alpha):
+        """CG's start (STARTING): r = b - A p, d = q = 0; else p += alpha d, r -= alpha q. Then z0 = omega r / diag,
+        the V-cycle's pre-smoothing. Returns r_a^2."""
         r = 0.0
         z0 = 0.0
-        if self.role[a] == UNKNOWN:
-            r = self.rhs[a] - self.apply(self.p, a)
-            z0 = self.mg.omega * r / self.diag[a]
-        self.res[a] = r
-        self.z0[a] = z0
-        self.d[a] = 0.0
-        self.q[a] = 0.0
-        return ti.Vector([r * r])
-
-    @ti.func
-    def mgcg_update_row(self, a, alpha):
-        r = 0.0
-        if self.role[a] == UNKNOWN:
+        if self.progress[STARTING] > 0.0:
+            if self.role[a] == UNKNOWN:
+                r = self.rhs[a] - self.apply(self.p, a)
+                z0 = self.mg.omega * r / self.diag[a]
+            self.res[a] = r
+            self.d[a] = 0.0
+            self.q[a] = 0.0
+            self.z0[a] = z0
+        elif self.role[a] == UNKNOWN:
             r = self.advance(a, alpha)
             self.z0[a] = self.mg.omega * r / self.diag[a]
         return ti.Vector([r * r])
@@ -388,21 +387,9 @@ class MatrixFreePPE:
         self.conjugate_direction(serial, live)
 
     @ti.kernel
-    def mgcg_start(self, serial: ti.template()):
-        """r = b - A p (|r|^2 reduced), the stopping test; z = M r (the multigrid V-cycle), d = z, q = A d."""
-        for s in ti.static((RZ, PQ)):
-            self.scalars[s] = 0.0
-        live = self.live()
-        self.sums.add_live(self.mgcg_start_row, (RR,), serial, 0.0, live)
-        self.check_convergence()
-        live = self.live()
-        self.mg.restrict_particles(serial, live)
-        self.mg.v_cycle(serial, live)
-        self.mgcg_direction(serial, live)
-
-    @ti.kernel
     def mgcg_iteration(self, serial: ti.template()):
-        """One multigrid-preconditioned CG iteration, one launch:
+        """One multigrid-preconditioned CG iteration, one launch (the solve's first launch is CG's start:
+        r = b - A p, then from `z = M r` on the same):
 
             alpha = rz / d.q;  p += alpha d;  r -= alpha q                      (|r|^2 reduced; stopping test)
             z = M r                                                             (r.z reduced)
@@ -413,8 +400,13 @@ class MatrixFreePPE:
         the stopping test said done, every loop is empty.
         """
         live = self.live()
-        self.sums.add_live(self.mgcg_update_row, (RR,), serial, self.step_length(), live)
-        self.count_and_check(live)
+        start = ti.cast(self.progress[STARTING], ti.i32)
+        if start:
+            for s in ti.static((RZ, PQ)):
+                self.scalars[s] = 0.0
+        self.sums.add_live(self.mgcg_row, (RR,), serial, self.step_length(), live)
+        self.count_and_check(live * (1 - start))  # the start is not an iteration
+        self.progress[STARTING] = 0.0
         live = self.live()
         # z0 = omega r / diag was set by the update; the restriction, the cell levels, the prolongation
         self.mg.restrict_particles(serial, live)
@@ -437,7 +429,7 @@ class MatrixFreePPE:
             self.cg_start(serial)
         elif self.solver == "mgcg":
             self.mg.assemble(serial)
-            self.mgcg_start(serial)
+            self.mgcg_iteration(serial)  # the start
         while True:
             if self.serial is None:
                 self._choose_schedule(iterate, max(self.check_every, SCHEDULE_PROBE))
