@@ -57,9 +57,10 @@ kept from the restriction, and A P y_1 (a particle's coupling to the 3^dim cells
 to ~50 (3D) neighbour-list entries: the same operator M in other round-off (iterations unchanged: 11.4 a
 step at 100k particles), and 9.2 -> 8.1 ms per iteration on one CPU thread (2D, 100k particles). The
 couplings cost (3^dim - 1) floats per particle. On a GPU the same reasoning holds (the pass streams 8 or 26
-floats per particle instead of index + coefficient per neighbour; not measured there). Per cell level
-two Taichi kernels, with the level sizes as runtime arguments so that one compiled kernel serves every
-level; levels under SERIAL_CELLS cells run on one thread (a thread-pool round costs more than their
+floats per particle instead of index + coefficient per neighbour; not measured there). The cell
+levels run inside the CG iteration's own kernel (`v_cycle`, the levels unrolled: one launch per
+iteration, loops of trip count 0 once the device-side stopping test said done) and the assembly in one
+kernel; levels under SERIAL_CELLS cells run on one thread (a thread-pool round costs more than their
 work); nothing is read back by the host.
 """
 
@@ -346,7 +347,7 @@ class CellMultigrid:
     def assemble_kernel(self, serial: ti.template()):
         """Every level's operator and list of non-empty cells, one launch (the levels unrolled)."""
         self.galerkin_from_particles(serial)
-        self.active_boxes(len(self.levels))
+        self.active_boxes(ti.static(len(self.levels)))
         for l in ti.static(range(len(self.levels) - 1)):
             self.galerkin_coarsen(l, ti.static(self.one_thread(serial, l + 1)))
         for l in ti.static(range(len(self.levels))):

@@ -12,8 +12,19 @@ positive definite once some particle has a prescribed (Dirichlet) pressure.
 weighted Jacobi, Jacobi-preconditioned conjugate gradients (one Taichi kernel per iteration), or conjugate
 gradients preconditioned by the aggregation multigrid V-cycle of physics/multigrid.py (`mgcg`: iterations
 nearly flat in N: 9 / 11 / 15 a step on the 2D dam break at 10k / 100k / 1M particles, where Jacobi-CG
-takes 163 / 542 / -); every
-scalar of the iteration stays on the device and the host reads one residual norm every few iterations.
+takes 163 / 542 / -).
+
+No host synchronisation per iteration: every scalar of the iteration (|r|^2, r.z, d.q, alpha, beta) and
+the solve's state (`progress`: iterations, relative residual, the done flag, pinned) stay on the device.
+The stopping test, |r| / |b| <= tolerance or max_iterations, runs in the iteration's own kernel, in f64
+as the host used to run it; once it says done, every loop of a later iteration is empty (a runtime
+trip count of 0). The host launches `isph.ppe.check_every` iterations and then reads `progress` once:
+the result is the same, bit for bit, for every check_every (tests/test_ppe_loop.py), which trades
+read-backs (a device sync each: ~10-20 us on a GPU) against empty launches after convergence. One mgcg
+iteration, V-cycle included, is one kernel launch; a solve adds four (start, multigrid assembly, CG's
+start, the pinned level). Measured on this 2-core CPU, 2D dam break with 10k particles (`taichi-sph
+bench --solver isph`, 9.3 iterations a step): 52 launches and 13.4 read-backs a step before, 25 and 3.75
+after (check_every 4).
 """
 
 # No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
