@@ -58,9 +58,9 @@ to ~50 (3D) neighbour-list entries: the same operator M in other round-off (iter
 step at 100k particles), and 9.2 -> 8.1 ms per iteration on one CPU thread (2D, 100k particles). The
 couplings cost (3^dim - 1) floats per particle. On a GPU the same reasoning holds (the pass streams 8 or 26
 floats per particle instead of index + coefficient per neighbour; not measured there). The cell
-levels run inside the CG iteration's own kernel (`v_cycle`, the levels unrolled: one launch per
-iteration, loops of trip count 0 once the device-side stopping test said done) and the assembly in one
-kernel; levels under SERIAL_CELLS cells run on one thread (a thread-pool round costs more than their
+levels run inside the CG iteration's kernels (`v_cycle`, the large levels unrolled: on a GPU one launch
+per iteration, on the CPU the one-thread part is a kernel of its own; loops of trip count 0 once the
+device-side stopping test said done); levels under SERIAL_CELLS cells run on one thread (a thread-pool round costs more than their
 work); nothing is read back by the host.
 """
 
@@ -166,6 +166,11 @@ class CellMultigrid:
         # each level's non-empty cells (A_l[I, I] > 0), listed once per solve at lv_offset: the V-cycle's loops
         # run over these (no empty cell, no division to find a cell's coordinates)
         self.active_count = ti.field(ti.i32, n_levels)
+        self.cycle_first = ti.field(ti.i32, n_levels)  # cycle_first[l] = l (a level index the compiler cannot fold)
+        self.lv_last = ti.field(ti.i32, ())
+        self.first_small_now = ti.field(ti.i32, ())  # the first small level of the schedule running (small_cycle)
+        self.cycle_first.from_numpy(np.arange(n_levels, dtype=np.int32))
+        self.lv_last[None] = n_levels - 1
         for l, lv in enumerate(self.levels):
             self.lv_n[l], self.lv_stride[l], self.lv_factor[l] = lv.n, lv.strides, lv.factor
             self.lv_shift[l] = tuple(f - 1 for f in lv.factor)
@@ -338,18 +343,22 @@ class CellMultigrid:
     # -- operators ------------------------------------------------------------------------------------
     def assemble(self, serial: bool) -> None:
         """A_1 = P^T A P from the particles' pair coefficients, then A_{l+1} = P^T A_l P down the levels."""
-        self.assemble_kernel(serial)
+        self.assemble_top(serial)
+        for l in range(len(self.levels) - 1):
+            self.galerkin_coarsen(l, serial or self.small[l + 1])
+        self.collect_all_active(serial)
 
     def one_thread(self, serial: bool, l: int) -> bool:
         return serial or self.small[l]
 
     @ti.kernel
-    def assemble_kernel(self, serial: ti.template()):
-        """Every level's operator and list of non-empty cells, one launch (the levels unrolled)."""
+    def assemble_top(self, serial: ti.template()):
         self.galerkin_from_particles(serial)
         self.active_boxes(ti.static(len(self.levels)))
-        for l in ti.static(range(len(self.levels) - 1)):
-            self.galerkin_coarsen(l, ti.static(self.one_thread(serial, l + 1)))
+
+    @ti.kernel
+    def collect_all_active(self, serial: ti.template()):
+        """Every level's list of non-empty cells, one launch (the levels unrolled; a small pass each)."""
         for l in ti.static(range(len(self.levels))):
             self.collect_active(l, ti.static(self.one_thread(serial, l)))
 
@@ -425,8 +434,8 @@ class CellMultigrid:
                     ti.atomic_min(self.box_lo[0][d], ic[d])
                     ti.atomic_max(self.box_hi[0][d], ic[d])
 
-    @ti.func
-    def galerkin_coarsen(self, l, serial: ti.template()):
+    @ti.kernel
+    def galerkin_coarsen(self, l: ti.i32, serial: ti.template()):
         """A_{l+1}[I', J'] = sum of A_l[I, J] over the children I of I' and J of J'."""
         fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
         ti.loop_config(serialize=serial)
@@ -519,12 +528,24 @@ class CellMultigrid:
 
     # -- the V-cycle: the cell levels ---------------------------------------------------------------
     def coarse_cycle(self, serial: bool) -> None:
-        """The cell levels of one V-cycle as a kernel of its own (the CG iterations call `v_cycle` inside theirs)."""
-        self.coarse_cycle_kernel(serial)
+        """The cell levels of one V-cycle as kernels of their own (the CG iterations run them inside theirs)."""
+        self.cycle_down(serial)
+        self.small_cycle()
+        self.cycle_up(serial)
 
     @ti.kernel
-    def coarse_cycle_kernel(self, serial: ti.template()):
-        self.v_cycle(serial, 1)
+    def cycle_down(self, serial: ti.template()):
+        self.v_cycle_down(serial, 1)
+
+    @ti.kernel
+    def cycle_up(self, serial: ti.template()):
+        self.v_cycle_up(serial, 1)
+
+    @ti.kernel
+    def small_cycle(self):
+        """The one-thread part of the V-cycle as its own kernel, one compiled copy for both loop schedules (inlined
+        into each schedule's iteration kernel it doubled the compile time); empty once the solve is done."""
+        self.small_levels_cycle(self.cycle_first[self.first_small_now[None]], self.lv_last[None], self.ppe.live())
 
     def first_small_level(self, serial: bool) -> int:
         """The first level that the one-thread loop handles: all of them when `serial`."""
@@ -536,13 +557,27 @@ class CellMultigrid:
         kernel (one launch for the whole cycle); with `live` 0 every loop is empty. Levels large enough for
         the thread pool get a parallel loop per pass; the small ones (all of them when `serial`) run in one
         loop on one thread (a thread-pool round, or on a GPU a task, costs more than a small level's work)."""
+        self.v_cycle_down(serial, live)
+        # the bounds read at run time (as constants the compiler unrolled the level loop)
+        self.small_levels_cycle(self.cycle_first[ti.static(self.first_small_level(serial))], self.lv_last[None], live)
+        self.v_cycle_up(serial, live)
+
+    @ti.func
+    def v_cycle_down(self, serial: ti.template(), live):
+        """The large levels' smoothing and restriction, down to the first small level."""
         first = ti.static(self.first_small_level(serial))
+        if live:
+            self.first_small_now[None] = first
         for l in ti.static(range(first)):
             self.smooth_cells(l, self.x, live)
             ti.loop_config(serialize=ti.static(self.small[l + 1]))
             for k in range(self.active_count[l + 1] * live):
                 self.restrict_cell(l, k)
-        self.small_levels_cycle(first, ti.static(len(self.levels) - 1), live)
+
+    @ti.func
+    def v_cycle_up(self, serial: ti.template(), live):
+        """The large levels' prolongation and smoothing, from the first small level up."""
+        first = ti.static(self.first_small_level(serial))
         for m in ti.static(range(first)):
             for k in range(self.active_count[first - 1 - m] * live):
                 self.prolong_cell(first - 1 - m, k)

@@ -22,10 +22,8 @@ as the host used to run it; once it says done, every loop of a later iteration i
 trip count of 0). The host launches `isph.ppe.check_every` iterations and then reads `progress` once:
 the result is the same, bit for bit, for every check_every (tests/test_ppe_loop.py), which trades
 read-backs (a device sync each: ~10-20 us on a GPU) against empty launches after convergence. One mgcg
-iteration, V-cycle included, is one kernel launch; a solve adds four (start, multigrid assembly, CG's
-start, the pinned level). Measured on this 2-core CPU, 2D dam break with 10k particles (`taichi-sph
-bench --solver isph`, 9.3 iterations a step): 52 launches and 13.4 read-backs a step before, 25 and 3.75
-after (check_every 4).
+iteration, V-cycle included, is one kernel launch on a GPU and three on the CPU (see `mgcg_iteration`);
+a solve adds a few (its start and end, the multigrid assembly: one launch per level).
 """
 
 # No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
@@ -75,6 +73,8 @@ class MatrixFreePPE:
         self.max_iterations = max_iterations
         self.omega = omega
         self.check_every = int(check_every)  # iterations launched between two read-backs of the solve state
+        # mgcg: one launch per iteration on a GPU; three on the CPU (see `mgcg_iteration`)
+        self.fused = ti.lang.impl.current_cfg().arch not in (ti.x64, ti.arm64)
         self.role = ti.field(ti.i32, n)
         self.rhs = ti.field(float, n)
         self.diag = ti.field(float, n)
@@ -341,19 +341,31 @@ class MatrixFreePPE:
                 self.z[a] -= mean_z
         self.conjugate_direction(serial, live)
 
-    @ti.kernel
-    def mgcg_iteration(self, serial: ti.template()):
-        """One multigrid-preconditioned CG iteration, one launch (the solve's first launch is CG's start:
-        r = b - A p, then from `z = M r` on the same):
+    def mgcg_iteration(self, serial: bool) -> None:
+        """One multigrid-preconditioned CG iteration (the solve's first call is CG's start: r = b - A p, then
+        from `z = M r` on the same):
 
             alpha = rz / d.q;  p += alpha d;  r -= alpha q                      (|r|^2 reduced; stopping test)
             z = M r                                                             (r.z reduced)
             beta = rz_new / rz;  d = z + beta d;  q = A z + beta q              (d.q reduced)
 
         Two particle passes with a product by the neighbour list (the particle ends of the V-cycle ride with
-        CG's vector updates, see physics/multigrid.py), the cell levels' loops, and no host read-back; after
-        the stopping test said done, every loop is empty.
+        CG's vector updates, see physics/multigrid.py), the cell levels' loops, no host read-back; after the
+        stopping test said done, every loop is empty. `fused` (a GPU): one launch. Else (the CPU, where a
+        launch costs ~10 us and the loop-schedule probe compiles both schedules) three: the V-cycle's
+        one-thread part is a kernel of its own, compiled once (inlined into each schedule's kernel it
+        doubled the compile time: 2D dam break, 16.5k particles, 23 s against 11 s).
         """
+        if self.fused:
+            self.mgcg_fused_iteration(serial)
+        else:
+            self.mgcg_down(serial)
+            self.mg.small_cycle()
+            self.mgcg_up(serial)
+
+    @ti.func
+    def mgcg_update(self, serial: ti.template()):
+        """CG's start or update, the stopping test; returns live after it."""
         live = self.live()
         start = ti.cast(self.progress[STARTING], ti.i32)
         if start:
@@ -362,10 +374,25 @@ class MatrixFreePPE:
         self.sums.add_live(self.mgcg_row, (RR,), serial, self.step_length(), live)
         self.count_and_check(live * (1 - start))  # the start is not an iteration
         self.progress[STARTING] = 0.0
-        live = self.live()
-        # z0 = omega r / diag was set by the update; the restriction, the cell levels, the prolongation
-        self.mg.restrict_particles(serial, live)
+        return self.live()
+
+    @ti.kernel
+    def mgcg_fused_iteration(self, serial: ti.template()):
+        live = self.mgcg_update(serial)
+        self.mg.restrict_particles(serial, live)  # (z0 = omega r / diag was set by the update)
         self.mg.v_cycle(serial, live)
+        self.mgcg_direction(serial, live)
+
+    @ti.kernel
+    def mgcg_down(self, serial: ti.template()):
+        live = self.mgcg_update(serial)
+        self.mg.restrict_particles(serial, live)
+        self.mg.v_cycle_down(serial, live)
+
+    @ti.kernel
+    def mgcg_up(self, serial: ti.template()):
+        live = self.live()
+        self.mg.v_cycle_up(serial, live)
         self.mgcg_direction(serial, live)
 
     def solve(self, neumann_level: float = 0.0) -> tuple[int, float, bool]:
