@@ -33,13 +33,13 @@ def _first_half(E: ti.template()):
         if E.role[a] == UNKNOWN:
             z0 = E.mg.omega * E.res[a] / E.diag[a]
         E.z0[a] = z0
-    E.mg.restrict_particles(False)
+    E.mg.restrict_particles(False, 1)
 
 
 @ti.kernel
 def _second_half(E: ti.template()):
     E.scalars[RZ_NEW] = 0.0
-    E.mg.prolong_particles(False, False)
+    E.mg.prolong_particles(False, False, 1)
 
 
 def precondition(solver, r: np.ndarray) -> np.ndarray:

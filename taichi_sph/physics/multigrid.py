@@ -57,66 +57,24 @@ kept from the restriction, and A P y_1 (a particle's coupling to the 3^dim cells
 to ~50 (3D) neighbour-list entries: the same operator M in other round-off (iterations unchanged: 11.4 a
 step at 100k particles), and 9.2 -> 8.1 ms per iteration on one CPU thread (2D, 100k particles). The
 couplings cost (3^dim - 1) floats per particle. On a GPU the same reasoning holds (the pass streams 8 or 26
-floats per particle instead of index + coefficient per neighbour; not measured there). Per cell level
-two Taichi kernels, with the level sizes as runtime arguments so that one compiled kernel serves every
-level; levels under SERIAL_CELLS cells run on one thread (a thread-pool round costs more than their
+floats per particle instead of index + coefficient per neighbour; not measured there). The cell
+levels run inside the CG iteration's kernels (`v_cycle`, the large levels unrolled: on a GPU one launch
+per iteration, on the CPU the one-thread part is a kernel of its own; loops of trip count 0 once the
+device-side stopping test said done); levels under SERIAL_CELLS cells run on one thread (a thread-pool round costs more than their
 work); nothing is read back by the host.
 """
 
 # No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
 import itertools
-import math
-from dataclasses import dataclass
 
 import numpy as np
 import taichi as ti
 
-# stop coarsening at this many cells (empty ones included); the coarsest level gets Gauss-Seidel sweeps
-COARSEST_CELLS = 64
+from .grid_levels import COARSEST_CELLS, GridLevel, grid_levels  # noqa: F401 (COARSEST_CELLS, GridLevel: re-exported)
+
 # levels with fewer cells run their loops on one thread: on the CPU a thread-pool round costs more than
 # their work; on a GPU one thread is slow, so only the tiniest levels (a launch each costs more there)
 SERIAL_CELLS = {"cpu": 4096, "gpu": 256}
-
-
-@dataclass(frozen=True)
-class GridLevel:
-    """One coarse level: a box of cells (last axis fastest), stored at `offset` in the flat arrays."""
-
-    n: tuple[int, ...]
-    periodic: tuple[bool, ...]
-    offset: int
-    factor: tuple[int, ...]  # cells of this level merged per axis into one of the next (1 or 2)
-
-    @property
-    def count(self) -> int:
-        return math.prod(self.n)
-
-    @property
-    def strides(self) -> tuple[int, ...]:
-        s = [1] * len(self.n)
-        for d in range(len(self.n) - 2, -1, -1):
-            s[d] = s[d + 1] * self.n[d + 1]
-        return tuple(s)
-
-
-def coarsening_factors(n: tuple[int, ...], periodic: tuple[bool, ...]) -> tuple[int, ...]:
-    """Per axis 2 where the axis can halve (a periodic one keeps >= 3 cells, so that the 3-wide stencil
-    never names one cell twice), else 1."""
-    return tuple(2 if (n_d >= 6 if per else n_d >= 2) else 1 for n_d, per in zip(n, periodic))
-
-
-def grid_levels(n_cells: tuple[int, ...], periodic: tuple[bool, ...]) -> list[GridLevel]:
-    """Level 1 (the neighbour cells) and its coarsenings down to <= COARSEST_CELLS cells."""
-    levels: list[GridLevel] = []
-    n, offset = tuple(n_cells), 0
-    while True:
-        f = coarsening_factors(n, periodic)
-        last = math.prod(n) <= COARSEST_CELLS or all(x == 1 for x in f)
-        levels.append(GridLevel(n, periodic, offset, (1,) * len(n) if last else f))
-        if last:
-            return levels
-        offset += math.prod(n)
-        n = tuple((n_d + f_d - 1) // f_d for n_d, f_d in zip(n, f))
 
 
 @ti.data_oriented
@@ -165,6 +123,11 @@ class CellMultigrid:
         # each level's non-empty cells (A_l[I, I] > 0), listed once per solve at lv_offset: the V-cycle's loops
         # run over these (no empty cell, no division to find a cell's coordinates)
         self.active_count = ti.field(ti.i32, n_levels)
+        self.cycle_first = ti.field(ti.i32, n_levels)  # cycle_first[l] = l (a level index the compiler cannot fold)
+        self.lv_last = ti.field(ti.i32, ())
+        self.first_small_now = ti.field(ti.i32, ())  # the first small level of the schedule running (small_cycle)
+        self.cycle_first.from_numpy(np.arange(n_levels, dtype=np.int32))
+        self.lv_last[None] = n_levels - 1
         for l, lv in enumerate(self.levels):
             self.lv_n[l], self.lv_stride[l], self.lv_factor[l] = lv.n, lv.strides, lv.factor
             self.lv_shift[l] = tuple(f - 1 for f in lv.factor)
@@ -337,15 +300,27 @@ class CellMultigrid:
     # -- operators ------------------------------------------------------------------------------------
     def assemble(self, serial: bool) -> None:
         """A_1 = P^T A P from the particles' pair coefficients, then A_{l+1} = P^T A_l P down the levels."""
-        self.galerkin_from_particles(serial)
-        self.active_boxes(len(self.levels))
+        self.assemble_top(serial)
         for l in range(len(self.levels) - 1):
             self.galerkin_coarsen(l, serial or self.small[l + 1])
-        for l in range(len(self.levels)):
-            self.collect_active(l, serial or self.small[l])
+        self.collect_all_active(serial)
+
+    def one_thread(self, serial: bool, l: int) -> bool:
+        return serial or self.small[l]
 
     @ti.kernel
-    def collect_active(self, l: ti.i32, serial: ti.template()):
+    def assemble_top(self, serial: ti.template()):
+        self.galerkin_from_particles(serial)
+        self.active_boxes(ti.static(len(self.levels)))
+
+    @ti.kernel
+    def collect_all_active(self, serial: ti.template()):
+        """Every level's list of non-empty cells, one launch (the levels unrolled; a small pass each)."""
+        for l in ti.static(range(len(self.levels))):
+            self.collect_active(l, ti.static(self.one_thread(serial, l)))
+
+    @ti.func
+    def collect_active(self, l, serial: ti.template()):
         """List level l's non-empty cells of its box (in box order on one thread; in any order in parallel:
         every pass over the list computes each cell from its own inputs). An empty cell is never written by
         the V-cycle, so its iterates are zeroed here, where a coarse correction may read them."""
@@ -363,8 +338,8 @@ class CellMultigrid:
                 self.x[base + c] = 0.0
                 self.y[base + c] = 0.0
 
-    @ti.kernel
-    def active_boxes(self, n_levels: ti.i32):
+    @ti.func
+    def active_boxes(self, n_levels):
         """Each coarser level's box holds the parents of the finer box (level 1's was reduced by
         galerkin_from_particles)."""
         ti.loop_config(serialize=True)
@@ -384,7 +359,7 @@ class CellMultigrid:
         """Column of `cell_coupling` of the stencil slot s (the centre slot has none)."""
         return s if s < self.center else s - 1
 
-    @ti.kernel
+    @ti.func
     def galerkin_from_particles(self, serial: ti.template()):
         """A_1[I, I] = sum_{a in I} A_aa, A_1[I, J] = -sum_{a in I, b in J} coeff_ab; and each particle's
         coupling to the cells around its own, cell_coupling[a, J] = sum_{b in J} coeff_ab (J != I)."""
@@ -439,13 +414,13 @@ class CellMultigrid:
 
     # -- the V-cycle: particle ends (called inside the CG kernels) ----------------------------------
     @ti.func
-    def restrict_particles(self, serial: ti.template()):
+    def restrict_particles(self, serial: ti.template(), live):
         """b_1 = P^T (r - A z0) (z0 = omega r / diag, the particles' pre-smoothing) and x_1 = omega D_1^-1 b_1.
         A z0 is kept in `ppe.z` (free until the post-smoothing overwrites it): the post-smoothing reuses it."""
         E = self.ppe
         NS = self.ppe.nsearch
         ti.loop_config(serialize=serial)
-        for k in range(self.active_count[0]):
+        for k in range(self.active_count[0] * live):
             _, c = self.active_cell(0, k)
             acc = 0.0
             for a in range(NS.cell_start[c], NS.cell_start[c + 1]):
@@ -478,14 +453,14 @@ class CellMultigrid:
         return acc
 
     @ti.func
-    def prolong_particles(self, serial: ti.template(), sums: ti.template()):
+    def prolong_particles(self, serial: ti.template(), sums: ti.template(), live):
         """z = u + omega (r - A u) / diag with u = z0 + s P y_1, where A u = A z0 (kept by restrict_particles)
         + s A P y_1 (`coarse_correction`): no product with the neighbour list. r . z reduced (and sum z,
         sum r with `sums`)."""
         if ti.static(sums):
-            self.ppe.sums.add(self.prolong_row, (self.rz_slot, self.z_sum_slot, self.r_sum_slot), serial, 0.0)
+            self.ppe.sums.add_live(self.prolong_row, (self.rz_slot, self.z_sum_slot, self.r_sum_slot), serial, 0.0, live)
         else:
-            self.ppe.sums.add(self.prolong_row, (self.rz_slot,), serial, 0.0)
+            self.ppe.sums.add_live(self.prolong_row, (self.rz_slot,), serial, 0.0, live)
 
     @ti.func
     def prolong_row(self, a, _):
@@ -510,27 +485,60 @@ class CellMultigrid:
 
     # -- the V-cycle: the cell levels ---------------------------------------------------------------
     def coarse_cycle(self, serial: bool) -> None:
-        """From b_1 and x_1 (set by restrict_particles) to y_1: down, coarsest solve, up. Levels large
-        enough for the thread pool get a kernel per pass; the small ones (all of them when `serial`) run
-        in one kernel on one thread: a kernel launch costs more than a small level's work."""
-        last = len(self.levels) - 1
-        first = 0 if serial else self.first_small
-        for l in range(first):
-            self.smooth_level(l, self.x)
-            self.restrict_level(l, self.small[l + 1])
-        self.small_levels_cycle(first, last)
-        for l in range(first - 1, -1, -1):
-            self.prolong_level(l)
-            self.smooth_level(l, self.y)
+        """The cell levels of one V-cycle as kernels of their own (the CG iterations run them inside theirs)."""
+        self.cycle_down(serial)
+        self.small_cycle()
+        self.cycle_up(serial)
 
-    def smooth_level(self, l: int, v) -> None:
-        """The cell_sweeps - 1 sweeps after the first, alternating between v and the scratch field."""
-        src, dst = v, self.swept
-        for _ in range(self.cell_sweeps - 1):
-            self.jacobi_sweep(l, src, dst)
-            src, dst = dst, src
-        if src is not v:
-            self.copy_level(l, src, v)
+    @ti.kernel
+    def cycle_down(self, serial: ti.template()):
+        self.v_cycle_down(serial, 1)
+
+    @ti.kernel
+    def cycle_up(self, serial: ti.template()):
+        self.v_cycle_up(serial, 1)
+
+    @ti.kernel
+    def small_cycle(self):
+        """The one-thread part of the V-cycle as its own kernel, one compiled copy for both loop schedules (inlined
+        into each schedule's iteration kernel it doubled the compile time); empty once the solve is done."""
+        self.small_levels_cycle(self.cycle_first[self.first_small_now[None]], self.lv_last[None], self.ppe.live())
+
+    def first_small_level(self, serial: bool) -> int:
+        """The first level that the one-thread loop handles: all of them when `serial`."""
+        return 0 if serial else self.first_small
+
+    @ti.func
+    def v_cycle(self, serial: ti.template(), live):
+        """From b_1 and x_1 (set by restrict_particles) to y_1: down, coarsest solve, up, inside the caller's
+        kernel (one launch for the whole cycle); with `live` 0 every loop is empty. Levels large enough for
+        the thread pool get a parallel loop per pass; the small ones (all of them when `serial`) run in one
+        loop on one thread (a thread-pool round, or on a GPU a task, costs more than a small level's work)."""
+        self.v_cycle_down(serial, live)
+        # the bounds read at run time (as constants the compiler unrolled the level loop)
+        self.small_levels_cycle(self.cycle_first[ti.static(self.first_small_level(serial))], self.lv_last[None], live)
+        self.v_cycle_up(serial, live)
+
+    @ti.func
+    def v_cycle_down(self, serial: ti.template(), live):
+        """The large levels' smoothing and restriction, down to the first small level."""
+        first = ti.static(self.first_small_level(serial))
+        if live:
+            self.first_small_now[None] = first
+        for l in ti.static(range(first)):
+            self.smooth_cells(l, self.x, live)
+            ti.loop_config(serialize=ti.static(self.small[l + 1]))
+            for k in range(self.active_count[l + 1] * live):
+                self.restrict_cell(l, k)
+
+    @ti.func
+    def v_cycle_up(self, serial: ti.template(), live):
+        """The large levels' prolongation and smoothing, from the first small level up."""
+        first = ti.static(self.first_small_level(serial))
+        for m in ti.static(range(first)):
+            for k in range(self.active_count[first - 1 - m] * live):
+                self.prolong_cell(first - 1 - m, k)
+            self.smooth_cells(first - 1 - m, self.y, live)
 
     @ti.func
     def sweep_cell(self, l, k, src: ti.template(), dst: ti.template()):
@@ -576,49 +584,29 @@ class CellMultigrid:
                 au += a_cs * uj
         self.y[fine + c] = u + self.omega * self.dinv[fine + c] * (self.b[fine + c] - au)
 
-    @ti.kernel
-    def jacobi_sweep(self, l: ti.i32, src: ti.template(), dst: ti.template()):
-        for k in range(self.active_count[l]):
-            self.sweep_cell(l, k, src, dst)
-
-    @ti.kernel
-    def copy_level(self, l: ti.i32, src: ti.template(), dst: ti.template()):
-        for k in range(self.active_count[l]):
-            self.copy_cell(l, k, src, dst)
-
-    @ti.kernel
-    def restrict_level(self, l: ti.i32, serial: ti.template()):
-        ti.loop_config(serialize=serial)
-        for k in range(self.active_count[l + 1]):
-            self.restrict_cell(l, k)
-
-    @ti.kernel
-    def prolong_level(self, l: ti.i32):
-        for k in range(self.active_count[l]):
-            self.prolong_cell(l, k)
-
     @ti.func
-    def smooth_cells(self, l, v: ti.template()):
-        """smooth_level's sweeps inside the one-thread kernel."""
+    def smooth_cells(self, l, v: ti.template(), live):
+        """The cell_sweeps - 1 weighted-Jacobi sweeps after the first on level l, alternating between v and the
+        scratch field (parallel loops when called at a kernel's top level, else inside the caller's loop)."""
         for sweep in ti.static(range(self.cell_sweeps - 1)):
             if ti.static(sweep % 2 == 0):
-                for k in range(self.active_count[l]):
+                for k in range(self.active_count[l] * live):
                     self.sweep_cell(l, k, v, self.swept)
             else:
-                for k in range(self.active_count[l]):
+                for k in range(self.active_count[l] * live):
                     self.sweep_cell(l, k, self.swept, v)
         if ti.static(self.cell_sweeps % 2 == 0):  # an odd number of extra sweeps ended in the scratch field
-            for k in range(self.active_count[l]):
+            for k in range(self.active_count[l] * live):
                 self.copy_cell(l, k, self.swept, v)
 
-    @ti.kernel
-    def small_levels_cycle(self, first: ti.i32, last: ti.i32):
+    @ti.func
+    def small_levels_cycle(self, first, last, live):
         """The V-cycle from level `first` down to the coarsest and back, on one thread; on the coarsest level
         y = (symmetric Gauss-Seidel)^sweeps b from y = 0."""
         ti.loop_config(serialize=True)
-        for _ in range(1):
+        for _ in range(live):
             for l in range(first, last):
-                self.smooth_cells(l, self.x)
+                self.smooth_cells(l, self.x, 1)
                 for k in range(self.active_count[l + 1]):
                     self.restrict_cell(l, k)
             base, count = self.lv_offset[last], self.lv_count[last]
@@ -635,4 +623,4 @@ class CellMultigrid:
                 l = last - 1 - m
                 for k in range(self.active_count[l]):
                     self.prolong_cell(l, k)
-                self.smooth_cells(l, self.y)
+                self.smooth_cells(l, self.y, 1)

@@ -21,7 +21,10 @@ MIN_BLOCK_ROWS = 1024
 class RowSums:
     """`add(row, slots, serial, arg)` inside a kernel: totals[slots[j]] = sum over a < n of row(a, arg)[j], row a
     ti.func of the row index (and one value computed before the loop, e.g. CG's step length) returning a
-    ti.Vector of at least len(slots) entries (the first len(slots) are summed); it may write fields as it goes."""
+    ti.Vector of at least len(slots) entries (the first len(slots) are summed); it may write fields as it goes.
+    `add_live(row, slots, serial, arg, live)`: the same when the runtime value `live` is 1; when it is 0 every loop
+    is empty and the totals keep their values (a PPE iteration launched after the device-side stopping test
+    said the solve has converged: see physics/ppe.py)."""
 
     def __init__(self, n: int, totals, max_slots: int) -> None:
         self.n = n
@@ -33,9 +36,13 @@ class RowSums:
 
     @ti.func
     def add(self, row: ti.template(), slots: ti.template(), serial: ti.template(), arg):
+        self.add_live(row, slots, serial, arg, 1)
+
+    @ti.func
+    def add_live(self, row: ti.template(), slots: ti.template(), serial: ti.template(), arg, live):
         if ti.static(self.fixed_order):
             ti.loop_config(serialize=serial)
-            for blk in range(self.n_blocks):
+            for blk in range(self.n_blocks * live):
                 acc = ti.Vector.zero(float, ti.static(len(slots)))
                 for a in range(blk * self.block, ti.min(blk * self.block + self.block, self.n)):
                     v = row(a, arg)
@@ -44,7 +51,7 @@ class RowSums:
                 for j in ti.static(range(len(slots))):
                     self.partial[blk, j] = acc[j]
             ti.loop_config(serialize=True)
-            for _ in range(1):
+            for _ in range(live):
                 acc = ti.Vector.zero(float, ti.static(len(slots)))
                 for blk in range(self.n_blocks):
                     for j in ti.static(range(len(slots))):
@@ -52,10 +59,11 @@ class RowSums:
                 for j in ti.static(range(len(slots))):
                     self.totals[ti.static(slots[j])] = acc[j]
         else:
-            for j in ti.static(range(len(slots))):
-                self.totals[ti.static(slots[j])] = 0.0
+            if live:
+                for j in ti.static(range(len(slots))):
+                    self.totals[ti.static(slots[j])] = 0.0
             ti.loop_config(serialize=serial)
-            for a in range(self.n):
+            for a in range(self.n * live):
                 v = row(a, arg)
                 for j in ti.static(range(len(slots))):
                     ti.atomic_add(self.totals[ti.static(slots[j])], v[j])

@@ -70,14 +70,12 @@ import numpy as np
 import taichi as ti
 
 from ..config import Config
-from ..geometry import FLUID, WALL, ParticleArrays, lattice_distances, lattice_kernel_sum, wall_face_planes
+from ..geometry import FLUID, WALL, ParticleArrays, lattice_distances, lattice_kernel_sum
 from ..physics.momentum import monaghan_viscosity, morris_laminar_viscosity
-from ..particles import np_float
 from ..physics.free_surface import SURFACE_CANDIDATE, in_surface_cone
-from ..physics.walls import kinematic_wall_condition
-from ..physics.ppe import (BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE,
-                           free_surface_pressure, neumann_wall_pressure_difference, ppe_source,
-                           shao_lo_laplacian_weight, velocity_divergence_term)
+from ..physics.ppe import BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE
+from ..physics.ppe_terms import (free_surface_pressure, neumann_wall_pressure_difference, ppe_source,
+                                 shao_lo_laplacian_weight, velocity_divergence_term)
 from .base import SolverBase
 from .shifting import ParticleShifting
 
@@ -127,20 +125,13 @@ class ISPHSolver(SolverBase):
         self.alpha, self.beta_av = cfg.artificial_viscosity  # isph.artificial_viscosity_alpha or WCSPH's
         self.wall_mass = self.rho0 * self.lattice_volume
         # kinematic wall condition: each wall particle knows the face it lies behind (permuted with it)
-        self.kinematic_walls = self.features.walls and ic.wall_clearance is not None
-        if self.kinematic_walls:
-            self.wall_clearance = ic.wall_clearance * self.dx
-            normal, offset = wall_face_planes(cfg, arrays.x, arrays.kind)
-            self.wall_normal = P.add_vector(persistent=True)
-            self.wall_offset = P.add_scalar(persistent=True)
-            self.wall_normal.from_numpy(normal.astype(np_float()))
-            self.wall_offset.from_numpy(offset.astype(np_float()))
-            self.wall_cuts = ti.field(ti.i32, shape=())  # particle-steps the condition cut (over the run)
+        self.init_kinematic_walls(arrays, ic.wall_clearance)
         P.make_persistent(P.acc)  # the free-surface pressure uses the last acceleration
         self.rho_summation = P.add_scalar()    # rho_a before any floor: the density-invariance source
         self.grad_p_estimate = P.add_vector()  # rho0 (g - a) of the last step: grad p near the surface
         self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
-                                 ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid)
+                                 ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid,
+                                 ic.ppe.check_every)
         self.shifting = ParticleShifting(self, cfg.shifting.coefficient) if self.features.shifting else None
         self.iterations: list[int] = []
         self.residuals: list[float] = []
@@ -352,15 +343,7 @@ class ISPHSolver(SolverBase):
                 P.acc[a] += acc
                 v = P.v[a] + dt * acc
                 if ti.static(self.kinematic_walls):
-                    cut = 0
-                    for k in range(NS.count[a]):
-                        b = NS.neighbors[a, k]
-                        if P.kind[b] == WALL:
-                            distance = xa.dot(self.wall_normal[b]) - self.wall_offset[b]
-                            if distance > -0.5 * self.dx:  # on the fluid side of that face (or just past it)
-                                v, c = kinematic_wall_condition(v, self.wall_normal[b], distance,
-                                                                self.wall_clearance, dt)
-                                cut = ti.max(cut, c)
+                    v, cut = self.kinematic_wall_cut(a, v, dt)
                     if cut:
                         ti.atomic_add(self.wall_cuts[None], 1)
                 P.v[a] = v
@@ -437,11 +420,7 @@ class ISPHSolver(SolverBase):
             warnings.append(f"PPE ({self.ppe.solver}) stopped at max_iterations = {self.ppe.max_iterations} above the "
                             f"tolerance {self.ppe.tolerance:g} in {len(bad)} of {len(self.iterations)} steps (first at "
                             f"step {bad[0] + 1}, relative residual up to {worst:.3g})")
-        out = {"ppe": ppe, "ppe_warnings": warnings}
-        if self.kinematic_walls:
-            out["kinematic_walls"] = {"clearance_dx": self.wall_clearance / self.dx,
-                                      "particle_steps_cut": int(self.wall_cuts[None])}
-        return out
+        return {"ppe": ppe, "ppe_warnings": warnings, **self.kinematic_walls_summary()}
 
     def extra_timeseries(self) -> dict:
         """Iterations and relative residual of the last PPE solve."""

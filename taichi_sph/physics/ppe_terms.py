@@ -1,0 +1,62 @@
+"""The SPH terms of the pressure Poisson equation of the projection (ISPH) scheme: the Shao & Lo Laplacian's
+pair weight, the velocity divergence, the source and the boundary values (the system and its solvers:
+physics/ppe.py)."""
+
+# No `from __future__ import annotations`: Taichi reads the functions' argument annotations.
+import taichi as ti
+
+
+@ti.func
+def shao_lo_laplacian_weight(m_b: float, rho_a: float, rho_b: float, r_ab, r2: float, eta2: float, grad_w) -> float:
+    """K_ab = -m_b 8 / (rho_a + rho_b)^2 (r_ab . grad_a W_ab) / (r^2 + eta^2) >= 0 (grad_a W_ab points from a
+    towards b), so that the Shao & Lo Laplacian is div(grad p / rho)_a = -sum_b K_ab (p_a - p_b)."""
+    rho_ab = rho_a + rho_b
+    return -8.0 * m_b / (rho_ab * rho_ab) * r_ab.dot(grad_w) / (r2 + eta2)
+
+
+@ti.func
+def velocity_divergence_term(vol_b: float, v_ab, grad_w) -> float:
+    """One pair's share of div(v)_a = -sum_b V_b v_ab . grad_a W_ab, v_ab = v_a - v_b."""
+    return -vol_b * v_ab.dot(grad_w)
+
+
+@ti.func
+def ppe_source(div_v_star: float, rho: float, rho0: float, dt: float, dt_relax: float, beta: float) -> float:
+    """Right side s_a of div(grad p / rho) = s_a [1/s^2]:
+
+        divergence (Cummins & Rudman 1999):      s = div(v*) / dt
+        density invariance (Shao & Lo 2003):     s = (rho0 - rho*) / (rho0 dt dt_relax),  rho* = rho - dt rho div(v*)
+        blend:                                   s = (1 - beta) s_div + beta s_density
+    beta = 0 is the first, beta = 1 the second. dt_relax is dt (Shao & Lo) except in a step shortened
+    to land on an output or end time: there the unshortened dt keeps the density correction's velocity
+    kick, ~ (rho0 - rho) / rho0 h / dt_relax, what it is in every other step.
+    """
+    s_div = div_v_star / dt
+    s_density = (rho0 - rho) / (rho0 * dt * dt_relax) + rho / rho0 * s_div
+    return (1.0 - beta) * s_div + beta * s_density
+
+
+@ti.func
+def neumann_wall_pressure_difference(rho: float, body_acc, r_aw) -> float:
+    """p_a - p_w for a fluid particle a and a wall particle w when the wall takes the pressure of a fluid
+    in hydrostatic balance, pair by pair (the pairwise form of Adami et al. 2012):
+    p_w = p_a + rho (g - a_w) . (x_w - x_a), so p_a - p_w = rho (g - a_w) . r_aw, r_aw = x_a - x_w.
+    It does not depend on p: the wall is a Neumann condition dp/dn = rho (g - a_w) . n."""
+    return rho * body_acc.dot(r_aw)
+
+
+@ti.func
+def free_surface_pressure(rho0: float, depth: float, grad_c, body_acc, acc) -> float:
+    """Dirichlet value at a free-surface particle `depth` below the surface (dx/2 on a lattice).
+
+    The surface is an isobar, so grad p = rho0 (g - a) (Euler) is normal to it and p = depth |grad p|.
+    The kernel normal n = -grad C / |grad C| (grad C = sum_b V_b grad_a W_ab points into the fluid) only
+    decides the sign: zero where grad p points out of the fluid (no tension at a free surface). This is
+    rho0 |g| dx/2 on a surface at rest, also at a contact line where n leans off the vertical, and 0 in
+    free fall (a = g).
+    """
+    grad_p = rho0 * (body_acc - acc)
+    p = 0.0
+    if grad_c.dot(grad_p) > 0.0:
+        p = depth * grad_p.norm()
+    return p
