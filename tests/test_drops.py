@@ -71,7 +71,7 @@ def test_stretched_drop(tmp_path, solver, t_end, overrides, density_bound):
     assert s["status"] == "ok"
     assert s["errors"]["shape_error"] < 0.01
     assert s["max_density_error"] < density_bound
-    assert s["max_density_error_interior"] <= s["max_density_error"]
+    assert s["max_density_error_interior"] <= s["max_density_error"] + 1e-9  # (rounding: rho / rho0 - 1 there)
     order = s["particle_order"]
     assert order["min_pair_distance_dx"] >= 0.5
     assert order["max_void_particles"] == 0
