@@ -11,7 +11,18 @@ Every run (both solvers, 1D/2D/3D) writes, per output row of timeseries.csv:
   c_a < 0.97 with no fluid neighbour in the 45-degree cone around the outward normal;
 - `void_particles`: interior fluid particles whose kernel sum is below the threshold, at a hole in the
   fluid (`void_particles` below says exactly which): the particles the indicator misjudges as free
-  surface although no outside air reaches them.
+  surface although no outside air reaches them;
+- `interior_density_error`: max |rho_a - rho0| / rho0 of the solver's own density field over the
+  full-support particles: fluid particles with no free-surface particle (themselves included) within
+  the kernel support, so that no part of their support lies in the air. `max_density_error` counts every
+  fluid particle: with a summation density (ISPH; WCSPH `density: summation`) a particle whose support
+  the free surface cuts has a kernel-sum deficit that is not expansion (ISPH floors it at rho0 only
+  below c_a = 0.97, so the band 0.97-1 shows as up to 3%). This one is compression or expansion of fluid
+  whose neighbourhood is complete, for either solver;
+- `interior_kernel_sum_error`: max |c_a - 1| over the same particles: the summation density the current
+  arrangement implies (ISPH's density at the next step), the same definition for both solvers, so it
+  measures the disorder of the arrangement, whatever density the solver integrates (WCSPH's continuity
+  density does not see it).
 
 summary.json `particle_order` holds the extremes over the run (`ParticleOrderLog.summary`), and a
 warning is added when a void (>= 1 void particle at some output) or clumping (a fluid pair closer than
@@ -42,7 +53,8 @@ from .physics.free_surface import SURFACE_CANDIDATE, in_surface_cone, kernel_sum
 # repulsion fades (the cubic spline's |grad W| peaks at 2h/3 and vanishes at r = 0): the default dam
 # break reaches 0.003 dx (WCSPH) and 0.001 dx (ISPH). 0.5 dx is also issue 15's acceptance bound.
 CLUMPING_DX = 0.5
-ORDER_COLUMNS = ["min_pair_distance_dx", "min_wall_distance_dx", "void_particles", "free_surface_fraction"]
+ORDER_COLUMNS = ["min_pair_distance_dx", "min_wall_distance_dx", "void_particles", "free_surface_fraction",
+                 "interior_density_error", "interior_kernel_sum_error"]
 _FAR = 1e30
 
 
@@ -177,13 +189,16 @@ class OrderProbe:
         self.volume = self.dx ** cfg.dim
         self.lattice_sum = lattice_kernel_sum(cfg, solver.kernel.w_np)
         self.threshold = cfg.isph.free_surface_threshold
+        self.rho0 = cfg.fluid.rho0
         self.lo, self.hi, self.periodic = tuple(cfg.domain.lo), tuple(cfg.domain.hi), tuple(cfg.periodic)
         self.closest = ti.field(float, shape=2)  # min pair distance: [fluid-fluid, fluid-wall]
 
     @ti.kernel
-    def _measure(self, kernel_sum: ti.types.ndarray(), surface: ti.types.ndarray(), pos: ti.types.ndarray()):
-        """kernel_sum[a] = c_a, surface[a] = the ISPH free-surface flag (-1: not fluid), pos[a] = x_a;
-        closest = the smallest fluid-fluid and fluid-wall pair distances."""
+    def _measure(self, kernel_sum: ti.types.ndarray(), surface: ti.types.ndarray(), pos: ti.types.ndarray(),
+                 rho: ti.types.ndarray(), full: ti.types.ndarray()):
+        """kernel_sum[a] = c_a, surface[a] = the ISPH free-surface flag (-1: not fluid), pos[a] = x_a,
+        rho[a] = the solver's density, full[a] = 1 when no free-surface particle (a included) lies within
+        a's support; closest = the smallest fluid-fluid and fluid-wall pair distances."""
         S = self.solver
         P = S.particles
         NS = S.nsearch
@@ -194,6 +209,7 @@ class OrderProbe:
                 pos[a, d] = P.x[a][d]
             kernel_sum[a] = 0.0
             surface[a] = -1
+            rho[a] = P.rho[a]
             if P.kind[a] == FLUID:
                 xa = P.x[a]
                 sum_w = S.kernel.w0
@@ -226,16 +242,27 @@ class OrderProbe:
                                     flag = False
                 kernel_sum[a] = c
                 surface[a] = ti.select(flag, 1, 0)
+        for a in range(S.n):  # after the loop above: every flag is set
+            full[a] = 0
+            if surface[a] == 0:
+                full[a] = 1
+                for k in range(NS.count[a]):
+                    b = NS.neighbors[a, k]
+                    if surface[b] == 1:
+                        full[a] = 0
 
     def particles(self) -> dict:
         """Per fluid particle (in the solver's current order): x, kernel_sum c_a, free_surface (the
-        indicator's flag), void (void_particles); and the closest fluid-fluid / fluid-wall distances
+        indicator's flag), void (void_particles), rho (the solver's density), full_support (no
+        free-surface particle within the support); and the closest fluid-fluid / fluid-wall distances
         in dx (None where there is no such pair)."""
         S = self.solver
         c = np.zeros(S.n, dtype=np_float())
         surface = np.zeros(S.n, dtype=np.int32)
         pos = np.zeros((S.n, S.dim), dtype=np_float())
-        self._measure(c, surface, pos)
+        rho = np.zeros(S.n, dtype=np_float())
+        full = np.zeros(S.n, dtype=np.int32)
+        self._measure(c, surface, pos, rho, full)
         fluid = surface >= 0
         x = pos[fluid].astype(np.float64)
         kernel_sum = c[fluid].astype(np.float64)
@@ -243,15 +270,19 @@ class OrderProbe:
         void = (void_particles(x, kernel_sum, self.threshold, self.dx, self.lo, self.hi, self.periodic)
                 if len(x) else np.zeros(0, dtype=bool))
         return {"x": x, "kernel_sum": kernel_sum, "free_surface": surface[fluid] == 1, "void": void,
+                "rho": rho[fluid].astype(np.float64), "full_support": full[fluid] == 1,
                 "min_pair_distance_dx": closest[0], "min_wall_distance_dx": closest[1]}
 
     def measure(self) -> dict:
         """The timeseries columns ORDER_COLUMNS at the current state."""
         p = self.particles()
         n = len(p["x"])
+        full = p["full_support"]
         return {"min_pair_distance_dx": p["min_pair_distance_dx"], "min_wall_distance_dx": p["min_wall_distance_dx"],
                 "void_particles": int(p["void"].sum()),
-                "free_surface_fraction": float(p["free_surface"].sum()) / n if n else 0.0}
+                "free_surface_fraction": float(p["free_surface"].sum()) / n if n else 0.0,
+                "interior_density_error": float(np.abs(p["rho"][full] / self.rho0 - 1.0).max()) if full.any() else None,
+                "interior_kernel_sum_error": float(np.abs(p["kernel_sum"][full] - 1.0).max()) if full.any() else None}
 
 
 # ----------------------------------------------------------------------------- over the run
@@ -271,6 +302,8 @@ class ParticleOrderLog:
     surface_fraction_max: float = 0.0
     surface_fraction_final: float | None = None
     outputs: int = 0
+    interior_density_error: float | None = None
+    interior_kernel_sum_error: float | None = None
 
     def record(self, t: float, row: dict) -> None:
         """Fold one output row (OrderProbe.measure) into the extremes."""
@@ -292,6 +325,10 @@ class ParticleOrderLog:
             self.max_void, self.max_void_t = voids, t
         self.surface_fraction_max = max(self.surface_fraction_max, row["free_surface_fraction"])
         self.surface_fraction_final = row["free_surface_fraction"]
+        for key in ("interior_density_error", "interior_kernel_sum_error"):
+            value, worst = row.get(key), getattr(self, key)
+            if value is not None and (worst is None or value > worst):
+                setattr(self, key, value)
 
     def summary(self) -> dict:
         """summary.json `particle_order`."""
@@ -300,7 +337,8 @@ class ParticleOrderLog:
                 "max_void_particles": self.max_void, "max_void_t": self.max_void_t,
                 "void_outputs": self.void_outputs, "outputs": self.outputs,
                 "free_surface_fraction_max": self.surface_fraction_max,
-                "free_surface_fraction_final": self.surface_fraction_final}
+                "free_surface_fraction_final": self.surface_fraction_final,
+                "interior_kernel_sum_error_max": self.interior_kernel_sum_error}
 
     def warnings(self) -> list[str]:
         """One line each for a void and for clumping, if they appeared."""

@@ -366,6 +366,8 @@ class Simulation:
             "particle_steps_per_s": solver.n * nsteps / stepping_s,
             "fluid_particle_steps_per_s": solver.particles.n_fluid * nsteps / stepping_s,
             "max_density_error": loop.max_rho_err,
+            # the same over full-support particles (no free-surface particle within reach; particle_order.py)
+            "max_density_error_interior": self.order_log.interior_density_error,
             "errors": errors,
             "conservation": {
                 "fluid_mass": float(final["mass"][f].sum()),

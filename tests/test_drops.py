@@ -63,7 +63,7 @@ def stretched_drop(solver, tmp_path, t_end, *overrides):
 # the run unstable at 0.38 s.
 @pytest.mark.parametrize("solver, t_end, overrides, density_bound", [
     ("wcsph", 0.2, ("time.cfl=0.25",), 0.03),
-    ("isph", 0.3, (), 0.06),
+    ("isph", 0.3, (), 0.04),  # 0.0335 at h = 1.6 dx (0.038 at 1.3 dx), all of it interior (full support)
 ])
 def test_stretched_drop(tmp_path, solver, t_end, overrides, density_bound):
     """A short stretched-drop run: shape within 1% of the ellipse ODE, no clumping, no void, density bound."""
@@ -71,22 +71,26 @@ def test_stretched_drop(tmp_path, solver, t_end, overrides, density_bound):
     assert s["status"] == "ok"
     assert s["errors"]["shape_error"] < 0.01
     assert s["max_density_error"] < density_bound
+    assert s["max_density_error_interior"] <= s["max_density_error"] + 1e-9  # (rounding: rho / rho0 - 1 there)
     order = s["particle_order"]
     assert order["min_pair_distance_dx"] >= 0.5
     assert order["max_void_particles"] == 0
 
 
-def test_oscillating_drop_wcsph_short(tmp_path):
-    """The central force holds the drop; the first quarter period (a grows to 1.17 R by t = 0.2 s) follows
-    the ODE within 1%."""
+def test_oscillating_drop_wcsph_through_the_first_minimum(tmp_path):
+    """The central force holds the drop; through the first maximum (1.19 R at t = 0.28 s) and the first
+    minimum (0.84 R at t = 0.84 s) the semi-axes follow the ODE within 1% and the half period within 1%.
+    At h = 1.3 dx the amplitude fell 5% short by the minimum (shape error 1.56% here, a 1.4% too large at
+    t = 0.85 s) with the energy conserved: the scene's h = 1.6 dx gives 0.77%."""
     cfg = load_config(bundled_configs_dir() / "oscillating_drop_2d.yaml",
-                      ["solver=wcsph", "time.t_end=0.2", "time.cfl=0.25"])
+                      ["solver=wcsph", "time.t_end=0.9", "time.cfl=0.25"])
     s = Simulation(cfg, tmp_path, render=False, quiet=True).run().summary
     assert s["status"] == "ok"
     assert "central_force" in s["features"]
     assert s["errors"]["shape_error"] < 0.01
-    assert s["errors"]["a_over_R_end"] == pytest.approx(s["errors"]["a_ref_over_R_end"], rel=0.01)
+    assert abs(s["errors"]["half_period_rel_error"]) < 0.01
     assert s["particle_order"]["min_pair_distance_dx"] >= 0.5
+    assert s["max_density_error"] < 0.03
 
 
 def test_bundled_ellipse_table_matches_the_ode():

@@ -22,10 +22,11 @@ def _cfg(dim: int, solver: str = "wcsph"):
         "bodies": [{"type": "fluid_block", "lo": [0.0] * dim, "hi": [side] * dim}]})
 
 
-def _probe(cfg, x: np.ndarray):
+def _probe(cfg, x: np.ndarray, rho: np.ndarray | None = None):
     n = len(x)
     rho0 = cfg.fluid.rho0
-    arrays = ParticleArrays(x=x, v=np.zeros_like(x), rho=np.full(n, rho0), p=np.zeros(n),
+    rho = np.full(n, rho0) if rho is None else rho
+    arrays = ParticleArrays(x=x, v=np.zeros_like(x), rho=rho, p=np.zeros(n),
                             mass=np.full(n, rho0 * DX ** cfg.dim), kind=np.full(n, FLUID, dtype=np.int32))
     solver = make_solver(cfg, arrays)
     solver.prepare()
@@ -84,6 +85,51 @@ def test_a_full_lattice_has_no_void_and_a_surface_band(dim):
     assert np.isclose(row["min_pair_distance_dx"], 1.0, atol=1e-4)
 
 
+@pytest.mark.parametrize("solver", ["wcsph", "isph"])
+def test_interior_density_error_leaves_out_the_surface_band(solver):
+    """A 2D lattice block whose solver density is 10% short at a corner particle, 7% short 1.5 dx deep
+    (a truncated support: a summation density's deficit there is not expansion) and 5% over at the centre:
+    the interior error is the centre's 5%. Full support means no flagged particle within reach: every
+    full-support particle of a lattice has kernel sum 1, and every particle deeper than the support plus
+    the flagged layer is full. One particle moved 0.3 dx sets the interior kernel-sum error, which equals
+    the brute-force kernel sums' largest deviation over the full-support particles."""
+    cfg = _cfg(2, solver)
+    rho0, side = cfg.fluid.rho0, CELLS[2] * DX
+    x = lattice_box((0.0, 0.0), (side, side), DX)
+    solver_, probe = _probe(cfg, x)
+    # the solver's density, set after prepare (ISPH's prepare sums it), by position
+    P = solver_.particles
+    xs = P.x.to_numpy()[:len(x)].astype(np.float64)
+    depth = np.min(np.minimum(xs, side - xs), axis=1) / DX  # 0.5 on the outer layer
+    centre = int(np.argmin(np.linalg.norm(xs - side / 2, axis=1)))
+    band = int(np.flatnonzero(np.isclose(depth, 1.5))[0])
+    rho = np.full(P.rho.shape[0], rho0, dtype=P.rho.to_numpy().dtype)
+    rho[int(np.argmin(depth + 1e-3 * xs[:, 0]))] = 0.90 * rho0
+    rho[band] = 0.93 * rho0
+    rho[centre] = 1.05 * rho0
+    P.rho.from_numpy(rho)
+    p = probe.particles()
+    assert np.allclose(p["x"], xs, atol=1e-6)  # the probe's order is the solver's
+    full = p["full_support"]
+    assert full[centre] and not full[band]
+    assert np.all(full[depth > solver_.support / DX + 1.0]) and not np.any(full[depth < solver_.support / DX - 0.5])
+    assert np.allclose(p["kernel_sum"][full], 1.0, atol=1e-4)
+    row = probe.measure()
+    assert row["interior_density_error"] == pytest.approx(0.05, abs=1e-5)
+    assert row["interior_kernel_sum_error"] < 1e-4
+    moved = x.copy()
+    moved[np.argmin(np.linalg.norm(x - side / 2, axis=1)), 0] += 0.3 * DX
+    _, probe = _probe(cfg, moved)
+    p = probe.particles()
+    order, ref_order = np.lexsort(p["x"].T[::-1]), np.lexsort(moved.T[::-1])
+    c_ref = _kernel_sums(cfg, solver_, moved)[ref_order]
+    full = p["full_support"][order]
+    expected = np.abs(c_ref[full] - 1.0).max()
+    assert expected > 0.01
+    row = probe.measure()
+    assert row["interior_kernel_sum_error"] == pytest.approx(expected, abs=1e-4)
+
+
 def test_a_hole_across_the_periodic_corner_is_a_void():
     """Fully periodic (Taylor-Green-like): no outside at all. A full lattice has no void; with a disc of
     radius 2.5 dx removed around the corner of the box (split over four periodic images), the void
@@ -137,10 +183,13 @@ def test_order_log_extremes_and_warnings():
     log.record(0.5, {"min_pair_distance_dx": 0.8, "min_wall_distance_dx": 0.9, "void_particles": 7,
                      "free_surface_fraction": 0.3})
     log.record(1.0, {"min_pair_distance_dx": 0.9, "min_wall_distance_dx": 1.0, "void_particles": 2,
-                     "free_surface_fraction": 0.25})
+                     "free_surface_fraction": 0.25, "interior_density_error": 0.02, "interior_kernel_sum_error": None})
+    log.record(1.5, {"min_pair_distance_dx": 0.9, "min_wall_distance_dx": 1.0, "void_particles": 2,
+                     "free_surface_fraction": 0.25, "interior_density_error": 0.01, "interior_kernel_sum_error": 0.04})
+    assert log.interior_density_error == 0.02 and log.summary()["interior_kernel_sum_error_max"] == 0.04
     s = log.summary()
     assert s["min_pair_distance_dx"] == 0.8 and s["min_pair_distance_t"] == 0.5 and s["min_wall_distance_dx"] == 0.9
-    assert s["max_void_particles"] == 7 and s["max_void_t"] == 0.5 and s["void_outputs"] == 2
+    assert s["max_void_particles"] == 7 and s["max_void_t"] == 0.5 and s["void_outputs"] == 3
     assert s["free_surface_fraction_max"] == 0.3 and s["free_surface_fraction_final"] == 0.25
     (w,) = log.warnings()
     assert "void at t = 0.5" in w

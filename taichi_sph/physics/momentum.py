@@ -17,6 +17,13 @@ Monaghan's positive-pressure term (`epsilon_positive` 0.01) did not help: the pa
 along its walls (closest 0.006-0.016 dx, with or without the correction) are beyond any kernel-gradient
 repulsion (grad W -> 0 as r -> 0 for the Wendland kernels), and it let 1 particle through at a/40 with
 the mirror.
+Since WCSPH's kinematic wall condition (`wcsph.wall_clearance`, on by default) the correction is usable
+on the dam break: the default dam_break_2d with `wcsph.tensile_correction.enabled=true` runs to t = 1 s
+(status ok, 10953 steps) with 0 particles outside the walls at every output time
+(conservation.wall_crossings_max), front raw / shifted RMS 0.2441 / 0.0398 (targets 0.25 / 0.04), max
+density error 0.071; at a/40 0 crossings against 6 with `wcsph.wall_clearance=null`, at a/20 0 against 1
+(tests/test_wcsph.py). It does not separate the wall pairs: closest fluid pair 0.004 dx (as without it).
+It stays off by default: the front is the same to four digits.
 """
 
 import taichi as ti
