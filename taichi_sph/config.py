@@ -77,7 +77,8 @@ class Body:
     velocity: tuple[Any, ...] | None = opt(None, "initial velocity (fluid) or prescribed velocity (wall): dim numbers, or dim "
                                            "expressions of x, y, z, t-free (numpy functions sin, cos, exp, sqrt, pi, ...)", unit="m/s")
     hydrostatic: bool = opt(False, "fluid_block/fluid_sphere: start with hydrostatic density for the given gravity (free surface at the body top)")
-    pressure: Any = opt(None, "fluid: initial pressure, a number or an expression of x, y, z (as velocity); "
+    pressure: Any = opt(None, "fluid: initial pressure, a number or an expression of x, y, z (as velocity, plus "
+                                             "square_poisson(x, y, L): lap phi = 1 in the square |x|, |y| < L/2, 0 on its edges); "
                                              "WCSPH starts from the Tait density of it (no start-up pressure wave); None = 0 "
                                              "(or hydrostatic)", unit="Pa")
 
@@ -249,7 +250,7 @@ class Probe:
 class Metric:
     type: str = opt("hydrostatic", "reference metric written to summary.json errors",
                     choices=("hydrostatic", "surge_front", "taylor_green", "poiseuille", "cavity", "column_fall",
-                             "probe_pressure", "drop_ellipse"))
+                             "probe_pressure", "drop_ellipse", "rotating_square"))
     depth: float | None = opt(None, "hydrostatic: fluid depth H", unit="m", positive=True)
     floor: float = opt(0.0, "hydrostatic / surge_front: floor height", unit="m")
     column_width: float | None = opt(None, "surge_front: column width a", unit="m", positive=True)
@@ -258,6 +259,8 @@ class Metric:
     lid_velocity: float = opt(1.0, "cavity: lid speed", unit="m/s")
     strain_rate: float = opt(0.0, "drop_ellipse: A0 of the first fluid_sphere's initial velocity A0 (x - c, c - y) about its "
                                   "centre c", unit="1/s")
+    angular_velocity: float = opt(1.0, "rotating_square: omega of the first fluid_block's initial rigid rotation u = omega "
+                                       "(y - y_c, x_c - x) about its centre (clockwise for omega > 0)", unit="1/s")
     width: float = opt(1.0, "poiseuille / cavity: channel or cavity width", unit="m")
     probe: str = opt("", "probe_pressure: name of the probe (see probes) compared with the reference")
     reference: str = opt("dambreak_buchner2002_pressure_probe_pysph",
