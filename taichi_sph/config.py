@@ -194,6 +194,9 @@ class ISPH:
                                         "flows, where a kernel-sum deficit is not expansion; off in closed boxes (one-sided source drifts)")
     artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor; None = wcsph.artificial_viscosity.alpha "
                                                          "(ISPH steps ~10x longer, so the same alpha damps differently)", minimum=0.0)
+    shifting_coefficient: float | None = opt(None, "A of the particle shift in ISPH; None = shifting.coefficient (ISPH's corrected "
+                                                   "pressure gradient has no pairwise repulsion: shifting is all that re-orders its "
+                                                   "particles, and it may need a larger A than WCSPH)", minimum=0.0)
     wall_clearance: float | None = opt(0.25, "kinematic wall condition: the speed toward a wall face is cut so that no fluid particle "
                                              "comes closer than this to it (fluid starts dx/2 away); holds free-surface films, "
                                              "which have no PPE pressure; None = off", unit="dx", minimum=0.0)
@@ -354,6 +357,13 @@ class Config:
         if self.solver == "isph" and self.isph.artificial_viscosity_alpha is not None:
             return self.isph.artificial_viscosity_alpha, av.beta
         return av.alpha, av.beta
+
+    @property
+    def shifting_coefficient(self) -> float:
+        """A of the particle shift for this run's solver (isph.shifting_coefficient or shifting.coefficient)."""
+        if self.solver == "isph" and self.isph.shifting_coefficient is not None:
+            return self.isph.shifting_coefficient
+        return self.shifting.coefficient
 
     @property
     def checkpoint_interval(self) -> float | None:

@@ -141,7 +141,7 @@ class ISPHSolver(SolverBase):
         self.grad_p_estimate = P.add_vector()  # rho0 (g - a) of the last step: grad p near the surface
         self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
                                  ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid)
-        self.shifting = ParticleShifting(self, cfg.shifting.coefficient) if self.features.shifting else None
+        self.shifting = ParticleShifting(self, cfg.shifting_coefficient) if self.features.shifting else None
         self.iterations: list[int] = []
         self.residuals: list[float] = []
         self.pure_neumann_steps = 0
