@@ -4,7 +4,10 @@
 
 Each RUN_DIR is a finished run of the scene (its timeseries.csv has the rotating_square metric's columns); the
 table is their mean, interpolated onto omega t = 0, 0.02, ..., the shortest run's end. The header lines
-(source, runs, spread between the runs) are written from the runs themselves.
+(source, runs, spread between the runs) are written from the runs themselves; the bundled table's lines on
+convergence and on the early-time curvature were added by hand. Bundled: the scene's settings at dx = 0.005 (WCSPH,
+time.cfl=0.25, alpha 0.02, A = 4) and dx = 0.01 (ISPH, shifting A = 4, blend 0.3: the settings before the scene's
+ISPH got A = 8 / blend 0.1, which goes unstable at dx 0.01).
 """
 
 from __future__ import annotations
