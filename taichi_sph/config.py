@@ -81,7 +81,8 @@ class Body:
     velocity: tuple[Any, ...] | None = opt(None, "initial velocity (fluid) or prescribed velocity (wall): dim numbers, or dim "
                                            "expressions of x, y, z, t-free (numpy functions sin, cos, exp, sqrt, pi, ...)", unit="m/s")
     hydrostatic: bool = opt(False, "fluid_block/fluid_sphere: start with hydrostatic density for the given gravity (free surface at the body top)")
-    pressure: Any = opt(None, "fluid: initial pressure, a number or an expression of x, y, z (as velocity); "
+    pressure: Any = opt(None, "fluid: initial pressure, a number or an expression of x, y, z (as velocity, plus "
+                                             "square_poisson(x, y, L): lap phi = 1 in the square |x|, |y| < L/2, 0 on its edges); "
                                              "WCSPH starts from the Tait density of it (no start-up pressure wave); None = 0 "
                                              "(or hydrostatic)", unit="Pa")
 
@@ -201,6 +202,9 @@ class ISPH:
                                         "flows, where a kernel-sum deficit is not expansion; off in closed boxes (one-sided source drifts)")
     artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor; None = wcsph.artificial_viscosity.alpha "
                                                          "(ISPH steps ~10x longer, so the same alpha damps differently)", minimum=0.0)
+    shifting_coefficient: float | None = opt(None, "A of the particle shift in ISPH; None = shifting.coefficient (ISPH's corrected "
+                                                   "pressure gradient has no pairwise repulsion: shifting is all that re-orders its "
+                                                   "particles, and it may need a larger A than WCSPH)", minimum=0.0)
     wall_clearance: float | None = opt(0.25, "kinematic wall condition: the speed toward a wall face is cut so that no fluid particle "
                                              "comes closer than this to it (fluid starts dx/2 away); holds free-surface films, "
                                              "which have no PPE pressure; None = off", unit="dx", minimum=0.0)
@@ -257,7 +261,7 @@ class Probe:
 class Metric:
     type: str = opt("hydrostatic", "reference metric written to summary.json errors",
                     choices=("hydrostatic", "surge_front", "taylor_green", "poiseuille", "cavity", "column_fall",
-                             "probe_pressure", "drop_ellipse"))
+                             "probe_pressure", "drop_ellipse", "rotating_square"))
     depth: float | None = opt(None, "hydrostatic: fluid depth H", unit="m", positive=True)
     floor: float = opt(0.0, "hydrostatic / surge_front: floor height", unit="m")
     column_width: float | None = opt(None, "surge_front: column width a", unit="m", positive=True)
@@ -266,6 +270,8 @@ class Metric:
     lid_velocity: float = opt(1.0, "cavity: lid speed", unit="m/s")
     strain_rate: float = opt(0.0, "drop_ellipse: A0 of the first fluid_sphere's initial velocity A0 (x - c, c - y) about its "
                                   "centre c", unit="1/s")
+    angular_velocity: float = opt(1.0, "rotating_square: omega of the first fluid_block's initial rigid rotation u = omega "
+                                       "(y - y_c, x_c - x) about its centre (clockwise for omega > 0)", unit="1/s")
     width: float = opt(1.0, "poiseuille / cavity: channel or cavity width", unit="m")
     probe: str = opt("", "probe_pressure: name of the probe (see probes) compared with the reference")
     reference: str = opt("dambreak_buchner2002_pressure_probe_pysph",
@@ -359,6 +365,13 @@ class Config:
         if self.solver == "isph" and self.isph.artificial_viscosity_alpha is not None:
             return self.isph.artificial_viscosity_alpha, av.beta
         return av.alpha, av.beta
+
+    @property
+    def shifting_coefficient(self) -> float:
+        """A of the particle shift for this run's solver (isph.shifting_coefficient or shifting.coefficient)."""
+        if self.solver == "isph" and self.isph.shifting_coefficient is not None:
+            return self.isph.shifting_coefficient
+        return self.shifting.coefficient
 
     @property
     def checkpoint_interval(self) -> float | None:

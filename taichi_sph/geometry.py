@@ -13,6 +13,7 @@ import numpy as np
 
 from .config import AUTO, Body, Config
 from .errors import ConfigError
+from .reference import square_poisson
 
 FLUID = 0
 WALL = 1
@@ -89,6 +90,9 @@ def wall_box_points(body: Body, dx: float) -> np.ndarray:
 _SAFE_FUNCS = {name: getattr(np, name) for name in (
     "sin", "cos", "tan", "exp", "log", "sqrt", "abs", "tanh", "sinh", "cosh", "arctan", "arctan2", "minimum",
     "maximum", "where", "sign", "floor")}
+# scene-specific fields with no closed form: square_poisson(x, y, L) is phi with lap phi = 1 in the square
+# |x|, |y| < L/2, phi = 0 on its edges (the rotating square patch's initial pressure 2 rho omega^2 phi)
+_SAFE_FUNCS["square_poisson"] = square_poisson
 _SAFE_CONSTS = {"pi": math.pi, "e": math.e}
 _SAFE_NODES = (ast.Expression, ast.BinOp, ast.UnaryOp, ast.Call, ast.Name, ast.Load, ast.Constant, ast.Add, ast.Sub,
                ast.Mult, ast.Div, ast.Pow, ast.Mod, ast.USub, ast.UAdd, ast.Compare, ast.Lt, ast.Gt, ast.LtE, ast.GtE)

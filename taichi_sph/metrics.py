@@ -188,8 +188,8 @@ def register_metric(name: str, cls: type[MetricObserver]) -> None:
 
 
 def make_metrics(cfg: Config) -> list[MetricObserver]:
-    try:  # validation scenes (taylor_green, poiseuille, cavity; the drops) register their metrics on import
-        from . import drop_metrics, validation_metrics  # noqa: F401
+    try:  # validation scenes (taylor_green, poiseuille, cavity; the drops, the square patch) register their metrics on import
+        from . import drop_metrics, square_patch_metrics, validation_metrics  # noqa: F401
     except ImportError:
         pass
     out = []

@@ -133,7 +133,7 @@ class ISPHSolver(SolverBase):
         self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
                                  ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid,
                                  ic.ppe.check_every)
-        self.shifting = ParticleShifting(self, cfg.shifting.coefficient) if self.features.shifting else None
+        self.shifting = ParticleShifting(self, cfg.shifting_coefficient) if self.features.shifting else None
         self.iterations: list[int] = []
         self.residuals: list[float] = []
         self.pure_neumann_steps = 0

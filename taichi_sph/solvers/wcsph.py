@@ -46,7 +46,7 @@ class WCSPHSolver(SolverBase):
         tc = cfg.wcsph.tensile_correction
         self.tc_epsilon, self.tc_epsilon_positive, self.tc_n = tc.epsilon, tc.epsilon_positive, tc.n
         self.w_dx = float(self.kernel.w_np(np.array([self.dx]))[0])
-        self.shifting = ParticleShifting(self, cfg.shifting.coefficient) if f.shifting else None
+        self.shifting = ParticleShifting(self, cfg.shifting_coefficient) if f.shifting else None
         self.schedule = LoopSchedule()
         # constants of the device-side dt rule (choose_dt's)
         tc = cfg.time
