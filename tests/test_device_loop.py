@@ -67,8 +67,11 @@ def test_serial_and_parallel_schedules_agree():
     a, b = fresh(cfg, True), fresh(cfg, False)
     assert a.advance(40) == b.advance(40)
     sa, sb = by_id(a), by_id(b)
+    # the two kernels are compiled apart, so fast-math may round a pair term differently: an f32 ulp of rho
+    # (6e-5) is 0.024 Pa of pressure here (gamma B / rho0 ulp); a schedule bug (a race) is orders larger
+    atol = {"x": 1e-6, "v": 1e-6, "rho": 1e-2, "p": 0.1}
     for k in sa:
-        np.testing.assert_allclose(sa[k], sb[k], rtol=0, atol=1e-6 if k in ("x", "v") else 1e-2, err_msg=k)
+        np.testing.assert_allclose(sa[k], sb[k], rtol=0, atol=atol[k], err_msg=k)
 
 
 def test_clock_stops_at_t_stop_and_lands_on_t_end():
