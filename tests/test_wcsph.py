@@ -201,8 +201,10 @@ def _dam_break_solver(schedule_serial):
 
 
 def test_loop_schedule_gives_identical_results():
-    """One thread or the thread pool: the same particles, bit for bit, after 300 steps with neighbour
-    rebuilds (every loop the schedule switches writes per particle; its reductions are max or counts)."""
+    """One thread or the thread pool: the same particles after 300 steps with neighbour rebuilds (every loop
+    the schedule switches writes per particle; its reductions are max or counts). The two kernels are
+    compiled apart and fast-math may round a term differently (since the branch-free pair terms: x within 2
+    f32 ulps after 300 steps); a race or a missed write would be orders larger."""
     states = []
     for serial in (True, False):
         solver = _dam_break_solver(serial)
@@ -212,8 +214,11 @@ def test_loop_schedule_gives_identical_results():
         states.append(solver.host_state())
     serial_state, parallel_state = states
     assert np.abs(serial_state["v"]).max() > 0.1  # the column has started to fall
-    for key in ("x", "v", "rho", "p", "id"):
-        np.testing.assert_array_equal(serial_state[key], parallel_state[key])
+    np.testing.assert_array_equal(serial_state["id"], parallel_state["id"])  # the same order
+    # p = B ((rho / rho0)^7 - 1) amplifies rho's rounding: a few ulps of rho are ~5e-5 of the largest p
+    for key, tol in (("x", 1e-5), ("v", 1e-5), ("rho", 1e-5), ("p", 1e-4)):
+        scale = np.abs(serial_state[key]).max()
+        np.testing.assert_allclose(serial_state[key], parallel_state[key], rtol=0, atol=tol * scale, err_msg=key)
 
 
 def test_loop_schedule_probes_then_keeps_the_faster():
@@ -278,7 +283,7 @@ def test_hydrostatic_density_difference_matches_the_exact_power():
     for gamma in (7.0, 1.0):
         @ti.kernel
         def fill(gamma: ti.template()):
-            for i in range(len(e)):
+            for i in range(out.shape[0]):
                 out[i] = hydrostatic_density_difference(ti.Vector([0.0, z[i]]), ti.Vector([0.0, -9.81]), rho0, b, gamma)
         fill(gamma)
         e32 = rho0 * g[1] * dz.astype(np.float32).astype(np.float64) / b
