@@ -154,7 +154,7 @@ def _support(cfg: Config) -> list[CheckResult]:
     minimum = {1: 4, 2: 12, 3: 30}[cfg.dim]
     if per_support >= minimum:
         return []
-    return [CheckResult("support", f"only {per_support} neighbours per support (hdx = {cfg.particles.hdx}); "
+    return [CheckResult("support", f"only {per_support} neighbours per support (hdx = {cfg.hdx}); "
                                    f"use particles.hdx >= 1.2 for at least {minimum}", severe=per_support < minimum // 2)]
 
 

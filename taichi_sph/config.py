@@ -149,6 +149,10 @@ class WCSPH:
     artificial_viscosity: ArtificialViscosity = opt(factory=ArtificialViscosity, doc="Monaghan artificial viscosity")
     tensile_correction: TensileCorrection = opt(factory=TensileCorrection, doc="Monaghan tensile correction")
     clamp_negative_pressure: bool = opt(False, "clamp p >= 0 (free-surface flows with summation density)")
+    tensile_instability_control: bool = opt(False, "delta+-SPH's tensile instability control (Sun et al. 2017): a particle "
+                                                   "in tension (p_a < 0) away from the free surface takes the pressure "
+                                                   "gradient in the difference form (p_b - p_a), which has no pairwise "
+                                                   "attraction; needs `shifting.model: sun` (its free-surface region)")
     wall_clearance: float | None = opt(0.25, "kinematic wall condition (as ISPH's): the speed toward a wall face is cut so "
                                              "that no fluid particle comes closer than this to it (fluid starts dx/2 away). "
                                              "Without it the thin fast layer after a dam-break impact sinks up to 0.32 dx past "
@@ -202,6 +206,9 @@ class ISPH:
                                         "flows, where a kernel-sum deficit is not expansion; off in closed boxes (one-sided source drifts)")
     artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor; None = wcsph.artificial_viscosity.alpha "
                                                          "(ISPH steps ~10x longer, so the same alpha damps differently)", minimum=0.0)
+    hdx: float | None = opt(None, "h / dx for ISPH; None = particles.hdx. ISPH's summation density (its density-invariance "
+                                  "source, its density error) spreads with the arrangement's disorder the more the smaller h is: "
+                                  "WCSPH's continuity density does not see it", positive=True)
     shifting_coefficient: float | None = opt(None, "A of the particle shift in ISPH; None = shifting.coefficient (ISPH's corrected "
                                                    "pressure gradient has no pairwise repulsion: shifting is all that re-orders its "
                                                    "particles, and it may need a larger A than WCSPH)", minimum=0.0)
@@ -311,7 +318,14 @@ class Config:
     @property
     def h(self) -> float:
         """Smoothing length h = hdx * dx."""
-        return self.particles.hdx * self.particles.dx
+        return self.hdx * self.particles.dx
+
+    @property
+    def hdx(self) -> float:
+        """h / dx for this run's solver (isph.hdx or particles.hdx)."""
+        if self.solver == "isph" and self.isph.hdx is not None:
+            return self.isph.hdx
+        return self.particles.hdx
 
     @property
     def central_force_center(self) -> tuple[float, ...]:
@@ -719,6 +733,10 @@ def validate(cfg: Config, source: str) -> None:
     sk = cfg.particles.skin
     if sk != AUTO and (isinstance(sk, str) or not 0.0 <= sk <= 1.0):
         raise ConfigError(f"must be 'auto' or a fraction in [0, 1], got {sk!r}", source=source, key="particles.skin")
+    if cfg.wcsph.tensile_instability_control and cfg.solver == "wcsph" and not (cfg.shifting_enabled and cfg.shifting.model == "sun"):
+        raise ConfigError("the tensile instability control tells the free-surface region by the particle shifting's free-surface "
+                          "flags: set `shifting.enabled: true` and `shifting.model: sun`, or switch it off",
+                          source=source, key="wcsph.tensile_instability_control")
     if cfg.particles.neighbor_access == "cells" and cfg.solver != "wcsph":
         raise ConfigError("'cells' is for WCSPH only: ISPH assembles its pressure equation from the stored lists; "
                           "use 'lists'", source=source, key="particles.neighbor_access")

@@ -26,6 +26,7 @@ class Features:
     density: str                  # continuity | summation (WCSPH); ISPH always uses summation for its source
     density_diffusion: str        # none | molteni | fourtakas
     tensile_correction: bool
+    tensile_instability_control: bool  # Sun et al. 2017's difference form in tension (WCSPH)
     integrator: str
     periodic: tuple[bool, ...]
     reflecting: bool
@@ -60,6 +61,7 @@ class Features:
             density=wc.density if cfg.solver == "wcsph" else "summation",
             density_diffusion=diffusion,
             tensile_correction=cfg.solver == "wcsph" and wc.tensile_correction.enabled,
+            tensile_instability_control=cfg.solver == "wcsph" and wc.tensile_instability_control,
             integrator=wc.integrator if cfg.solver == "wcsph" else "symplectic_euler",
             periodic=tuple(cfg.periodic),
             reflecting=cfg.reflecting.enabled,
@@ -77,6 +79,8 @@ class Features:
                 terms.append(f"density_diffusion:{self.density_diffusion}")
             if self.tensile_correction:
                 terms.append("monaghan_tensile_correction")
+            if self.tensile_instability_control:
+                terms.append("tensile_instability_control")
         if self.artificial_viscosity:
             terms.append("monaghan_artificial_viscosity")
         if self.laminar_viscosity:

@@ -288,3 +288,27 @@ def test_wall_face_planes_of_a_box_and_a_block():
     block_left = walls & np.isclose(arrays.x[:, 1], 0.25) & np.isclose(arrays.x[:, 0], 0.65)
     assert block_left.sum() == 1
     assert np.allclose(normal[block_left], [-1.0, 0.0]) and np.allclose(offset[block_left], -0.6)
+
+
+def test_density_before_the_first_step_follows_the_surface_band_floor():
+    """A square at rest with a free surface all round: before the first step (the state written at t = 0) the density
+    field already has the floor each step's PPE assembly applies next to the surface (a support the surface cuts
+    off is not expansion). Without it the t = 0 row showed the lattice's band deficit, 2.9% at h = 1.6 dx (the
+    rotating square's max density error), which no later row has."""
+    cfg = config_from_dict({
+        "name": "isph_square", "dim": 2, "solver": "isph",
+        "domain": {"lo": [-1.0, -1.0], "hi": [1.0, 1.0]},
+        "particles": {"dx": 0.05, "hdx": 1.6, "kernel": "wendland_c2"},
+        "fluid": {"reference_speed": 1.0},
+        "bodies": [{"type": "fluid_block", "lo": [-0.5, -0.5], "hi": [0.5, 0.5]}],
+        "time": {"t_end": 0.1},
+    })
+    arrays = build_particles(cfg)
+    solver = ISPHSolver(cfg, arrays)
+    solver.rebuild_neighbors()
+    solver.detect_free_surface()  # what prepare did alone before: the band (0.97 < kernel sum < 1) left as it is
+    rho = solver.particles.rho.to_numpy()[arrays.kind == 0]
+    assert np.abs(rho / 1000.0 - 1.0).max() > 0.02
+    solver.prepare()
+    rho = solver.particles.rho.to_numpy()[arrays.kind == 0]
+    assert np.abs(rho / 1000.0 - 1.0).max() < 1e-5

@@ -36,6 +36,14 @@ def symmetric_pressure_gradient(m_b: float, p_a: float, rho_a: float, p_b: float
 
 
 @ti.func
+def difference_pressure_gradient(m_b: float, p_a: float, rho_a: float, p_b: float, rho_b: float, grad_w):
+    """-m_b (p_b - p_a) / (rho_a rho_b) grad_a W_ab = -(1/rho_a) (p_b - p_a) grad_a W_ab V_b: zero for a uniform
+    pressure whatever the arrangement, so no pairwise attraction in tension (not momentum-conserving: the
+    tensile instability control of Sun et al. 2017 uses it only for p_a < 0 off the free surface)."""
+    return -m_b * (p_b - p_a) / (rho_a * rho_b) * grad_w
+
+
+@ti.func
 def monaghan_artificial_pressure(p: float, rho: float, epsilon: float, epsilon_positive: float) -> float:
     """Monaghan (2000) R = epsilon |p| / rho^2 for p < 0, epsilon_positive p / rho^2 for p >= 0 (his 0.01)."""
     return ti.select(p < 0.0, -epsilon * p, epsilon_positive * p) / (rho * rho)

@@ -88,7 +88,7 @@ MIN_MOMENT_DETERMINANT = 0.1
 
 def _lattice_offsets(cfg: Config) -> np.ndarray:
     """Distances |x_a - x_b| > 0 from one site of a full lattice of spacing dx to the others in reach."""
-    r = lattice_distances(cfg.dim, cfg.particles.dx, cfg.particles.hdx * cfg.particles.dx * 3.0)
+    r = lattice_distances(cfg.dim, cfg.particles.dx, cfg.hdx * cfg.particles.dx * 3.0)
     return r[r > 0]
 
 
@@ -193,6 +193,24 @@ class ISPHSolver(SolverBase):
                     rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
                 P.rho[a] = rho
             E.role[a] = role
+
+    @ti.kernel
+    def floor_surface_band_density(self):
+        """rho_a = max(rho_a, rho0) at the fluid particles with a free-surface (Dirichlet) neighbour: the floor the
+        PPE assembly applies every step (a support the free surface cuts off is not expansion), here for the state
+        before the first step, so that the density written at t = 0 follows the rule of every later output."""
+        P = self.particles
+        NS = self.nsearch
+        E = self.ppe
+        for a in range(self.n):
+            if P.kind[a] == FLUID and E.role[a] == UNKNOWN:
+                near_surface = False
+                for k in range(NS.count[a]):
+                    b = NS.neighbors[a, k]
+                    if P.kind[b] == FLUID and E.role[b] == DIRICHLET:
+                        near_surface = True
+                if near_surface:
+                    P.rho[a] = ti.max(P.rho[a], self.rho0)
 
     # -- 2. predictor -----------------------------------------------------------------------
     @ti.kernel
@@ -358,6 +376,7 @@ class ISPHSolver(SolverBase):
     def prepare(self) -> None:
         self.rebuild_neighbors()
         self.detect_free_surface()
+        self.floor_surface_band_density()
         if self.features.walls:
             self.wall_pressure()
 

@@ -70,6 +70,12 @@ class ParticleShifting:
         self.shift = solver.particles.add_vector()
         # surface flags of this step (sun: the projection band is found from the neighbours' flags)
         self.surface = solver.particles.add_scalar(dtype=ti.i32) if self.global_speed else None
+        # sun: 1 in the free-surface region (a surface particle within the support, itself included), for
+        # WCSPH's tensile instability control (read by the force pass that follows the shift)
+        self.keep_region = self.global_speed and solver.features.tensile_instability_control
+        self.surface_region = solver.particles.add_scalar(dtype=ti.i32) if self.keep_region else None
+        if self.keep_region:
+            self.surface_region.fill(1)  # before the first shift: the conservative (symmetric) form everywhere
 
     @ti.func
     def kernel_sum(self, a):
@@ -140,6 +146,8 @@ class ParticleShifting:
                             if ti.static(self.global_speed):
                                 if P.kind[b] == FLUID and r < S.support:
                                     band = ti.max(band, self.surface[b])
+                if ti.static(self.keep_region):
+                    self.surface_region[a] = ti.max(band, self.surface[a])
                 speed = P.v[a].norm()
                 if ti.static(self.global_speed):
                     speed = max_speed

@@ -20,8 +20,8 @@ import taichi as ti
 from ..config import AUTO, Config
 from ..geometry import FLUID, WALL, ParticleArrays
 from ..physics.density import continuity_rate, hydrostatic_density_difference, molteni_diffusion
-from ..physics.momentum import (monaghan_tensile_correction, monaghan_viscosity, morris_laminar_viscosity,
-                                symmetric_pressure_gradient)
+from ..physics.momentum import (difference_pressure_gradient, monaghan_tensile_correction, monaghan_viscosity,
+                                morris_laminar_viscosity, symmetric_pressure_gradient)
 from .base import LoopSchedule, SolverBase
 from .clock import DT_LIMITS, DeviceClock
 from .shifting import ParticleShifting
@@ -94,6 +94,9 @@ class WCSPHSolver(SolverBase):
                 acc = ti.Vector.zero(float, self.dim)
                 drho = 0.0
                 near_wall = 0
+                # tensile instability control: both pressure forms summed, one kept (compiled out without it)
+                acc_tension = ti.Vector.zero(float, self.dim)
+                acc_pressure = ti.Vector.zero(float, self.dim)
                 for s in range(NS.slots()):
                     k0, k1 = NS.span(a, s)
                     for k in range(k0, k1):
@@ -108,7 +111,11 @@ class WCSPHSolver(SolverBase):
                             # branch-free: an `if` that sets a flag in this loop made the f32 pass 3x slower
                             near_wall = ti.max(near_wall, ti.select(is_fluid_b, 0, 1))
                             v_ab = va - P.v[b]
-                            acc += symmetric_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
+                            if ti.static(self.features.tensile_instability_control):
+                                acc_tension += difference_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
+                                acc_pressure += symmetric_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
+                            else:
+                                acc += symmetric_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
                             if ti.static(self.features.tensile_correction):
                                 # a wall particle is ghost fluid mirroring particle a: its artificial pressure is a's
                                 # (its Adami pressure is clamped at >= 0, so its own R would leave fluid in tension
@@ -138,6 +145,10 @@ class WCSPHSolver(SolverBase):
                                 if ti.static(self.features.no_slip) or is_fluid_b:
                                     acc += morris_laminar_viscosity(m_b, self.nu, rho_a, rho_b, v_visc, r_ab, r2, self.eta2,
                                                                     grad_w)
+                if ti.static(self.features.tensile_instability_control):
+                    # Sun et al. 2017: the difference form for p_a < 0 outside the free-surface region
+                    in_tension = p_a < 0.0 and self.shifting.surface_region[a] == 0
+                    acc += ti.select(in_tension, acc_tension, acc_pressure)
                 if ti.static(self.features.gravity or self.features.central_force):
                     acc += self.body_force(xa)
                 P.acc[a] = acc
