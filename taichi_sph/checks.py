@@ -7,9 +7,10 @@ anyway) and `taichi-sph stability` reports it as the reason it refused the case.
 
 - `mach`          WCSPH: Ma = U / c0 (expected speed over sound speed); density errors ~ Ma^2.
                   Warning above 0.1 (errors > 1%); severe at >= 1: the fluid is softer than its own flow.
-- `cfl_number`    the adaptive step's Courant number `time.cfl` on h. Warning above 0.4 (the usual
-                  0.25 is exceeded: noisy pressure); severe above 1: a signal crosses more than h per
-                  step, outside the CFL condition, where an explicit update has no stability guarantee.
+- `cfl_number`    the adaptive step's Courant number `time.cfl` (ISPH: `isph.cfl` when set) on h. Warning
+                  above 0.4 (the usual 0.25 is exceeded: noisy pressure); severe above 1: a signal crosses
+                  more than h per step, outside the CFL condition, where an explicit update has no stability
+                  guarantee.
 - `cfl_dt`, `force_dt`, `viscous_dt`   a fixed `time.dt` against the limits at Courant number 0.25
                   (h / (c0 + U), sqrt(h / |g|)) and 0.125 h^2 / nu. Warning above them; severe above
                   4x (Courant number 1 on h, as for `cfl_number`; 2x the viscous limit: the explicit
@@ -70,12 +71,12 @@ def time_step_limits(cfg: Config) -> dict[str, float]:
     """The a-priori step limits at the configured Courant number `time.cfl` [s]:
     cfl = C h / (c0 + U) (WCSPH) or C h / U (ISPH); force = C sqrt(h / |g|); viscous = 0.125 h^2 / nu."""
     h = cfg.h
-    limits = {"cfl": cfg.time.cfl * h / signal_speed(cfg)}
+    limits = {"cfl": cfg.cfl * h / signal_speed(cfg)}
     if cfg.fluid.nu > 0:
         limits["viscous"] = 0.125 * h * h / cfg.fluid.nu
     g = float(np.linalg.norm(cfg.gravity_vector))
     if g > 0:
-        limits["force"] = cfg.time.cfl * math.sqrt(h / g)
+        limits["force"] = cfg.cfl * math.sqrt(h / g)
     return limits
 
 
@@ -112,10 +113,10 @@ def _mach(cfg: Config) -> list[CheckResult]:
 def _time_step(cfg: Config) -> list[CheckResult]:
     out: list[CheckResult] = []
     if cfg.time.dt == AUTO:
-        c = cfg.time.cfl
+        c = cfg.cfl
         if c > CFL_WARN:
             out.append(CheckResult(
-                "cfl_number", f"time.cfl = {c:g} exceeds {CFL_WARN}: " + (
+                "cfl_number", f"{'isph.cfl' if c != cfg.time.cfl else 'time.cfl'} = {c:g} exceeds {CFL_WARN}: " + (
                     f"above {CFL_SEVERE:g} a signal crosses more than h per step, outside the CFL condition"
                     if c > CFL_SEVERE else "expect noisy pressure; 0.25 is the usual choice"),
                 severe=c > CFL_SEVERE))

@@ -206,6 +206,8 @@ class ISPH:
                                         "flows, where a kernel-sum deficit is not expansion; off in closed boxes (one-sided source drifts)")
     artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor; None = wcsph.artificial_viscosity.alpha "
                                                          "(ISPH steps ~10x longer, so the same alpha damps differently)", minimum=0.0)
+    cfl: float | None = opt(None, "Courant number of ISPH's adaptive step; None = time.cfl. ISPH's step follows the flow "
+                                  "speed, WCSPH's the sound speed, so the same number means steps ~10x apart", positive=True)
     hdx: float | None = opt(None, "h / dx for ISPH; None = particles.hdx. ISPH's summation density (its density-invariance "
                                   "source, its density error) spreads with the arrangement's disorder the more the smaller h is: "
                                   "WCSPH's continuity density does not see it", positive=True)
@@ -320,12 +322,19 @@ class Config:
         """Smoothing length h = hdx * dx."""
         return self.hdx * self.particles.dx
 
+    def for_solver(self, isph_value, shared):
+        """`isph_value` (an `isph.*` override) in an ISPH run when it is set, else the `shared` value."""
+        return isph_value if self.solver == "isph" and isph_value is not None else shared
+
+    @property
+    def cfl(self) -> float:
+        """Courant number of the adaptive step for this run's solver (isph.cfl or time.cfl)."""
+        return self.for_solver(self.isph.cfl, self.time.cfl)
+
     @property
     def hdx(self) -> float:
         """h / dx for this run's solver (isph.hdx or particles.hdx)."""
-        if self.solver == "isph" and self.isph.hdx is not None:
-            return self.isph.hdx
-        return self.particles.hdx
+        return self.for_solver(self.isph.hdx, self.particles.hdx)
 
     @property
     def central_force_center(self) -> tuple[float, ...]:
@@ -376,16 +385,12 @@ class Config:
     def artificial_viscosity(self) -> tuple[float, float]:
         """(alpha, beta) of the Monaghan viscosity for this run's solver."""
         av = self.wcsph.artificial_viscosity
-        if self.solver == "isph" and self.isph.artificial_viscosity_alpha is not None:
-            return self.isph.artificial_viscosity_alpha, av.beta
-        return av.alpha, av.beta
+        return self.for_solver(self.isph.artificial_viscosity_alpha, av.alpha), av.beta
 
     @property
     def shifting_coefficient(self) -> float:
         """A of the particle shift for this run's solver (isph.shifting_coefficient or shifting.coefficient)."""
-        if self.solver == "isph" and self.isph.shifting_coefficient is not None:
-            return self.isph.shifting_coefficient
-        return self.shifting.coefficient
+        return self.for_solver(self.isph.shifting_coefficient, self.shifting.coefficient)
 
     @property
     def checkpoint_interval(self) -> float | None:

@@ -63,7 +63,9 @@ def stretched_drop(solver, tmp_path, t_end, *overrides):
 # the run unstable at 0.38 s.
 @pytest.mark.parametrize("solver, t_end, overrides, density_bound", [
     ("wcsph", 0.2, ("time.cfl=0.25",), 0.03),
-    ("isph", 0.3, (), 0.04),  # 0.0335 at h = 1.6 dx (0.038 at 1.3 dx), all of it interior (full support)
+    # 0.0335 at h = 1.6 dx and cfl 0.05 (0.038 at 1.3 dx), all of it interior (full support); the scene's
+    # isph.cfl 0.025: 0.0232 over the whole run
+    ("isph", 0.3, (), 0.03),
 ])
 def test_stretched_drop(tmp_path, solver, t_end, overrides, density_bound):
     """A short stretched-drop run: shape within 1% of the ellipse ODE, no clumping, no void, density bound."""
@@ -101,3 +103,11 @@ def test_bundled_ellipse_table_matches_the_ode():
         rows = data["scene"] == scene
         a = ellipse_drop_semi_axis(data["t"][rows], 0.5, a0, omega) / 0.5
         assert np.allclose(a, data["a_over_R"][rows], atol=1e-7)
+
+
+def test_isph_steps_at_its_own_courant_number():
+    """isph.cfl is ISPH's (a step on the flow speed), time.cfl WCSPH's (on the sound speed)."""
+    path = bundled_configs_dir() / "oscillating_drop_2d.yaml"
+    assert load_config(path, ["solver=isph"]).cfl == 0.025
+    assert load_config(path, ["solver=wcsph"]).cfl == 0.05
+    assert load_config(path, ["solver=isph", "isph.cfl=null"]).cfl == 0.05

@@ -400,15 +400,15 @@ class SolverBase:
         limits = {}
         speed = sound_speed + max_speed
         if speed > 0:
-            limits["cfl"] = tc.cfl * self.h / speed
+            limits["cfl"] = self.cfg.cfl * self.h / speed
         if max_acc > 0:
-            limits["force"] = tc.cfl * math.sqrt(self.h / max_acc)
+            limits["force"] = self.cfg.cfl * math.sqrt(self.h / max_acc)
         if self.nu > 0:
             limits["viscous"] = 0.125 * self.h * self.h / self.nu
         if tc.dt_max is not None:
             limits["dt_max"] = tc.dt_max
         if not limits:
-            limits["cfl"] = tc.cfl * self.h / max(self.cfg.expected_speed, 1e-12)
+            limits["cfl"] = self.cfg.cfl * self.h / max(self.cfg.expected_speed, 1e-12)
         self.last_dt_limit = min(limits, key=limits.get)
         return min(float(limits[self.last_dt_limit]), self.dt_cap)
 

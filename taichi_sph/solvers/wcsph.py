@@ -51,7 +51,7 @@ class WCSPHSolver(SolverBase):
         # constants of the device-side dt rule (choose_dt's)
         tc = cfg.time
         self.fixed_dt = 0.0 if tc.dt == AUTO else float(tc.dt)
-        self.cfl = float(tc.cfl)
+        self.cfl = float(cfg.cfl)
         self.dt_max = 0.0 if tc.dt_max is None else float(tc.dt_max)
         self.gravity_ramp = float(cfg.gravity_ramp) if f.gravity else 0.0
         self.gravity_full = tuple(float(g) for g in cfg.gravity_vector)
