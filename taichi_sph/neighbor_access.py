@@ -6,7 +6,8 @@ Every pair loop in the solvers reads
         k0, k1 = NS.span(a, s)
         for k in range(k0, k1):
             b = NS.at(a, k)
-            if NS.listed(NS.pair_vector(x_a, x_b)):   # compiled out with lists
+            r_ab = NS.pair_vector(x_a, x_b)
+            if NS.listed(r_ab):   # compiled out with lists
                 ...
 
 `particles.neighbor_access` picks the access at compile time; both compile from the same loop bodies

@@ -218,8 +218,8 @@ class OrderProbe:
                     k0, k1 = NS.span(a, s)
                     for k in range(k0, k1):
                         b = NS.at(a, k)
-                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
-                            r_ab = NS.pair_vector(xa, P.x[b])
+                        r_ab = NS.pair_vector(xa, P.x[b])
+                        if NS.listed(r_ab):  # compiled out with lists
                             r = r_ab.norm()
                             sum_w += S.kernel.w(r)
                             grad_c += S.kernel.grad_w(r_ab, r)
@@ -236,8 +236,9 @@ class OrderProbe:
                         k0, k1 = NS.span(a, s)
                         for k in range(k0, k1):
                             b = NS.at(a, k)
-                            if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
-                                r_ba = -NS.pair_vector(xa, P.x[b])
+                            r_ab = NS.pair_vector(xa, P.x[b])
+                            if NS.listed(r_ab):  # compiled out with lists
+                                r_ba = -r_ab
                                 if P.kind[b] == FLUID and in_surface_cone(r_ba, r_ba.norm(), outward, S.support):
                                     flag = False
                 kernel_sum[a] = c

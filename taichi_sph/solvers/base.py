@@ -239,8 +239,9 @@ class SolverBase:
                     k0, k1 = NS.span(a, s)
                     for k in range(k0, k1):
                         b = NS.at(a, k)
-                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
-                            r = NS.pair_vector(xa, P.x[b]).norm()
+                        r_ab = NS.pair_vector(xa, P.x[b])
+                        if NS.listed(r_ab):  # compiled out with lists
+                            r = r_ab.norm()
                             rho += P.mass[b] * self.kernel.w(r)
                 P.rho[a] = rho * self.inv_lattice_sum
 
@@ -288,9 +289,9 @@ class SolverBase:
                     k0, k1 = NS.span(a, s)
                     for k in range(k0, k1):
                         b = NS.at(a, k)
-                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
+                        r_ab = NS.pair_vector(xa, P.x[b])
+                        if NS.listed(r_ab):  # compiled out with lists
                             if P.kind[b] == FLUID:
-                                r_ab = NS.pair_vector(xa, P.x[b])
                                 w = self.kernel.w(r_ab.norm())
                                 sum_w += w
                                 sum_pw += P.p[b] * w

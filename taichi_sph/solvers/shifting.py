@@ -89,8 +89,9 @@ class ParticleShifting:
             k0, k1 = NS.span(a, s)
             for k in range(k0, k1):
                 b = NS.at(a, k)
-                if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
-                    ksum += P.mass[b] / P.rho[b] * S.kernel.w(NS.pair_vector(xa, P.x[b]).norm())
+                r_ab = NS.pair_vector(xa, P.x[b])
+                if NS.listed(r_ab):  # compiled out with lists
+                    ksum += P.mass[b] / P.rho[b] * S.kernel.w(r_ab.norm())
         return ksum
 
     @ti.kernel
@@ -134,8 +135,8 @@ class ParticleShifting:
                     k0, k1 = NS.span(a, s)
                     for k in range(k0, k1):
                         b = NS.at(a, k)
-                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
-                            r_ab = NS.pair_vector(xa, P.x[b])
+                        r_ab = NS.pair_vector(xa, P.x[b])
+                        if NS.listed(r_ab):  # compiled out with lists
                             r = r_ab.norm()
                             w = S.kernel.w(r)
                             vol_b = P.mass[b] / P.rho[b]

@@ -101,8 +101,8 @@ class WCSPHSolver(SolverBase):
                     k0, k1 = NS.span(a, s)
                     for k in range(k0, k1):
                         b = NS.at(a, k)
-                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
-                            r_ab = NS.pair_vector(xa, P.x[b])
+                        r_ab = NS.pair_vector(xa, P.x[b])
+                        if NS.listed(r_ab):  # compiled out with lists
                             r2 = r_ab.dot(r_ab)
                             r = ti.sqrt(r2)
                             grad_w = self.kernel.grad_w(r_ab, r)
@@ -175,8 +175,8 @@ class WCSPHSolver(SolverBase):
                     k0, k1 = NS.span(a, s)
                     for k in range(k0, k1):
                         b = NS.at(a, k)
-                        if NS.listed(NS.pair_vector(xa, P.x[b])):  # compiled out with lists
-                            r_ab = NS.pair_vector(xa, P.x[b])
+                        r_ab = NS.pair_vector(xa, P.x[b])
+                        if NS.listed(r_ab):  # compiled out with lists
                             r = r_ab.norm()
                             drho += continuity_rate(P.mass[b], va - P.v[b], self.kernel.grad_w(r_ab, r))
                 self.drho[a] = drho
