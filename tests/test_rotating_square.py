@@ -149,3 +149,13 @@ def test_tensile_instability_control_needs_the_sun_shifting_flags():
         load_config(CONFIG, ["solver=wcsph", "wcsph.tensile_instability_control=true", "shifting.enabled=false"])
     # ISPH has no use for it: accepted and compiled out
     assert load_config(CONFIG, ["solver=isph", "wcsph.tensile_instability_control=true", "shifting.enabled=false"])
+
+
+def test_tensile_instability_control_region_follows_the_particles_through_a_rebuild():
+    """The free-surface region is set by the shift, before the neighbour rebuild that may reorder the particles, and
+    read by the force pass after it: it must be reordered with them (it was not, at first: on rebuild steps the
+    force pass read another particle's flag)."""
+    from taichi_sph.simulation import make_solver
+    cfg = load_config(CONFIG, ["solver=wcsph", "particles.dx=0.1"])
+    solver = make_solver(cfg, build_particles(cfg))
+    assert solver.shifting.surface_region in solver.particles.persistent_fields

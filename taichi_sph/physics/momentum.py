@@ -30,8 +30,8 @@ with p_a < 0 outside the free-surface region (no surface particle within its sup
 flags) takes the difference form -(1/rho_a) sum_b (p_b - p_a) grad_a W_ab V_b, which is zero for a uniform
 pressure whatever the arrangement, so tension cannot pull pairs together; elsewhere the symmetric form keeps
 momentum (and the surface, where p_a ~ 0, is unchanged). On the rotating square (configs/rotating_square_2d.yaml,
-fluid in tension inside) without any shift: shape error 0.81% to omega t = 1 where the symmetric form tears the
-patch (26.8%); with the scene's shift at dx L/100 the closest pair stays at 0.69 dx where it fell to 0.40 dx.
+fluid in tension inside) without any shift: shape error 0.80% to omega t = 1 where the symmetric form tears the
+patch (26.8%); with the scene's shift at dx L/100 the closest pair stays at 0.76 dx where it fell to 0.40 dx.
 """
 
 import taichi as ti

@@ -71,9 +71,11 @@ class ParticleShifting:
         # surface flags of this step (sun: the projection band is found from the neighbours' flags)
         self.surface = solver.particles.add_scalar(dtype=ti.i32) if self.global_speed else None
         # sun: 1 in the free-surface region (a surface particle within the support, itself included), for
-        # WCSPH's tensile instability control (read by the force pass that follows the shift)
+        # WCSPH's tensile instability control; persistent: the neighbour rebuild between the shift and the force
+        # pass that reads it may reorder the particles
         self.keep_region = self.global_speed and solver.features.tensile_instability_control
-        self.surface_region = solver.particles.add_scalar(dtype=ti.i32) if self.keep_region else None
+        self.surface_region = (solver.particles.add_scalar(persistent=True, dtype=ti.i32) if self.keep_region
+                               else None)
         if self.keep_region:
             self.surface_region.fill(1)  # before the first shift: the conservative (symmetric) form everywhere
 
