@@ -68,7 +68,7 @@ def signal_speed(cfg: Config) -> float:
 
 
 def time_step_limits(cfg: Config) -> dict[str, float]:
-    """The a-priori step limits at the configured Courant number `time.cfl` [s]:
+    """The a-priori step limits at the configured Courant number (`time.cfl`, ISPH's `isph.cfl` when set) [s]:
     cfl = C h / (c0 + U) (WCSPH) or C h / U (ISPH); force = C sqrt(h / |g|); viscous = 0.125 h^2 / nu."""
     h = cfg.h
     limits = {"cfl": cfg.cfl * h / signal_speed(cfg)}
@@ -116,7 +116,7 @@ def _time_step(cfg: Config) -> list[CheckResult]:
         c = cfg.cfl
         if c > CFL_WARN:
             out.append(CheckResult(
-                "cfl_number", f"{'isph.cfl' if c != cfg.time.cfl else 'time.cfl'} = {c:g} exceeds {CFL_WARN}: " + (
+                "cfl_number", f"{cfg.solver_key('cfl', 'time.cfl')} = {c:g} exceeds {CFL_WARN}: " + (
                     f"above {CFL_SEVERE:g} a signal crosses more than h per step, outside the CFL condition"
                     if c > CFL_SEVERE else "expect noisy pressure; 0.25 is the usual choice"),
                 severe=c > CFL_SEVERE))
@@ -156,7 +156,8 @@ def _support(cfg: Config) -> list[CheckResult]:
     if per_support >= minimum:
         return []
     return [CheckResult("support", f"only {per_support} neighbours per support (hdx = {cfg.hdx}); "
-                                   f"use particles.hdx >= 1.2 for at least {minimum}", severe=per_support < minimum // 2)]
+                                   f"use {cfg.solver_key('hdx', 'particles.hdx')} >= 1.2 for at least {minimum}",
+                        severe=per_support < minimum // 2)]
 
 
 def _neighbour_capacity(cfg: Config) -> list[CheckResult]:

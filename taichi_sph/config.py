@@ -322,19 +322,27 @@ class Config:
         """Smoothing length h = hdx * dx."""
         return self.hdx * self.particles.dx
 
-    def for_solver(self, isph_value, shared):
-        """`isph_value` (an `isph.*` override) in an ISPH run when it is set, else the `shared` value."""
-        return isph_value if self.solver == "isph" and isph_value is not None else shared
+    def _isph_override(self, name: str) -> bool:
+        """Whether this run takes `isph.<name>` (an ISPH run with it set) rather than the shared key."""
+        return self.solver == "isph" and getattr(self.isph, name) is not None
+
+    def for_solver(self, name: str, shared):
+        """`isph.<name>` in an ISPH run when it is set, else the `shared` value."""
+        return getattr(self.isph, name) if self._isph_override(name) else shared
+
+    def solver_key(self, name: str, shared_key: str) -> str:
+        """The key `for_solver(name, ...)` reads for this run, for messages: 'isph.<name>' or `shared_key`."""
+        return f"isph.{name}" if self._isph_override(name) else shared_key
 
     @property
     def cfl(self) -> float:
         """Courant number of the adaptive step for this run's solver (isph.cfl or time.cfl)."""
-        return self.for_solver(self.isph.cfl, self.time.cfl)
+        return self.for_solver("cfl", self.time.cfl)
 
     @property
     def hdx(self) -> float:
         """h / dx for this run's solver (isph.hdx or particles.hdx)."""
-        return self.for_solver(self.isph.hdx, self.particles.hdx)
+        return self.for_solver("hdx", self.particles.hdx)
 
     @property
     def central_force_center(self) -> tuple[float, ...]:
@@ -385,12 +393,12 @@ class Config:
     def artificial_viscosity(self) -> tuple[float, float]:
         """(alpha, beta) of the Monaghan viscosity for this run's solver."""
         av = self.wcsph.artificial_viscosity
-        return self.for_solver(self.isph.artificial_viscosity_alpha, av.alpha), av.beta
+        return self.for_solver("artificial_viscosity_alpha", av.alpha), av.beta
 
     @property
     def shifting_coefficient(self) -> float:
         """A of the particle shift for this run's solver (isph.shifting_coefficient or shifting.coefficient)."""
-        return self.for_solver(self.isph.shifting_coefficient, self.shifting.coefficient)
+        return self.for_solver("shifting_coefficient", self.shifting.coefficient)
 
     @property
     def checkpoint_interval(self) -> float | None:

@@ -304,7 +304,7 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
 def lattice_kernel_sum(cfg: Config, w) -> float:
     """sum_b W(x_a - x_b) V_b over a full lattice (used to flag free-surface particles)."""
     dx = cfg.particles.dx
-    r = lattice_distances(cfg.dim, dx, cfg.hdx * dx * 3.0)
+    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h)
     return float(np.sum(w(r)) * dx ** cfg.dim)
 
 

@@ -88,7 +88,7 @@ MIN_MOMENT_DETERMINANT = 0.1
 
 def _lattice_offsets(cfg: Config) -> np.ndarray:
     """Distances |x_a - x_b| > 0 from one site of a full lattice of spacing dx to the others in reach."""
-    r = lattice_distances(cfg.dim, cfg.particles.dx, cfg.hdx * cfg.particles.dx * 3.0)
+    r = lattice_distances(cfg.dim, cfg.particles.dx, 3.0 * cfg.h)
     return r[r > 0]
 
 
