@@ -202,6 +202,14 @@ class ISPH:
     blend: float = opt(0.1, "weight of the density-invariance source in 'blend'", minimum=0.0)
     ppe: PPE = opt(factory=PPE, doc="PPE solver settings")
     free_surface_threshold: float = opt(0.8, "a particle is free-surface when its kernel sum / lattice kernel sum is below this", positive=True)
+    one_sided_ratio: float | None = opt(None, "a surface candidate (kernel sum below 0.97 of the lattice's) is also free-surface when "
+                                             "its own pressure's push on it, grad C . M^-T grad C, exceeds this fraction of its "
+                                             "neighbours' share of the projection's diagonal (a one-sided support: its PPE row "
+                                             "cannot hold it; physics/free_surface.py); None = off", positive=True)
+    step_force: str = opt("total", "the acceleration in the step's force limit CFL sqrt(h / |a|): 'total' (predictor and "
+                                   "pressure) or 'explicit' (body force and viscous terms: the pressure is the projection's "
+                                   "response to the step, ~ 1/dt^2 through the density source, and a limit on it feeds back: "
+                                   "a shorter step, a larger correction, a shorter step)", choices=("total", "explicit"))
     compression_only: bool = opt(False, "density-invariance source corrects compression only (rho floored at rho0): for free-surface "
                                         "flows, where a kernel-sum deficit is not expansion; off in closed boxes (one-sided source drifts)")
     artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor; None = wcsph.artificial_viscosity.alpha "

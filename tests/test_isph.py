@@ -6,11 +6,12 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_sph.config import config_from_dict
+from taichi_sph.config import bundled_configs_dir, config_from_dict, load_config
 from taichi_sph.geometry import build_particles
 from taichi_sph.kernels import make_kernel
 from taichi_sph.physics.ppe import BB, DIRICHLET, UNKNOWN
 from taichi_sph.simulation import Simulation
+from taichi_sph.physics.free_surface import projection_self_ratio
 from taichi_sph.solvers.isph import ISPHSolver, lattice_gradient_sum
 
 
@@ -312,3 +313,47 @@ def test_density_before_the_first_step_follows_the_surface_band_floor():
     solver.prepare()
     rho = solver.particles.rho.to_numpy()[arrays.kind == 0]
     assert np.abs(rho / 1000.0 - 1.0).max() < 1e-5
+
+
+@ti.kernel
+def _self_ratio(grad_c: ti.types.vector(2, float), moment: ti.types.matrix(2, 2, float),
+                grad_w_moment: ti.types.matrix(2, 2, float), vol: float) -> float:
+    return projection_self_ratio(grad_c, moment, grad_w_moment, vol)
+
+
+@pytest.mark.parametrize("depth, low, high", [(0, 2.0, 2.6), (1, 0.0, 0.15), (3, 0.0, 1e-3)])
+def test_projection_self_ratio_of_a_half_plane_lattice(depth, low, high):
+    """R = grad C . M^-T grad C / (V tr(M^-T sum V grad W (x) grad W)) on a lattice filling y <= 0 (h = 1.6 dx,
+    Wendland C2): 2.3 in the surface layer (its own pressure moves it more than it moves its neighbours:
+    a PPE row cannot hold it), 0.07 one layer below, 0 in a full support."""
+    dx, h = 1.0, 1.6
+    kernel = make_kernel("wendland_c2", 2, h)
+    xa = np.array([0.0, -float(depth)])
+    grad_c, moment, grad_w_moment = np.zeros(2), np.zeros((2, 2)), np.zeros((2, 2))
+    for i in range(-5, 6):
+        for j in range(-6, 1):
+            r_ab = xa - np.array([i * dx, j * dx])
+            r = np.linalg.norm(r_ab)
+            if 0.0 < r < kernel.support_radius:
+                grad_w = kernel.dw_dr_np(np.array([r]))[0] * r_ab / r
+                grad_c += dx * dx * grad_w
+                moment -= dx * dx * np.outer(r_ab, grad_w)
+                grad_w_moment += dx * dx * np.outer(grad_w, grad_w)
+    ratio = _self_ratio(grad_c, moment, grad_w_moment, dx * dx)
+    assert low < ratio < high
+
+
+@pytest.mark.parametrize("step_force, limit", [("total", "force"), ("explicit", "cfl")])
+def test_explicit_step_force_leaves_the_pressure_acceleration_out(step_force, limit):
+    """isph.step_force: a pressure acceleration of 1e4 m/s^2 (the projection's response to the last step)
+    bounds the next step with `total`, not with `explicit` (body force and viscous terms only)."""
+    cfg = load_config(bundled_configs_dir() / "elliptical_drop_2d.yaml",
+                      ["solver=isph", "particles.dx=0.05", f"isph.step_force={step_force}"])
+    solver = ISPHSolver(cfg, build_particles(cfg))
+    solver.prepare()
+    solver.step()
+    dt_before = solver.step()
+    solver.particles.acc.from_numpy(np.full((solver.n, 2), 1e4 / math.sqrt(2.0), dtype=np.float32))
+    dt = solver.step()
+    assert solver.last_dt_limit == limit
+    assert (dt < 0.5 * dt_before) == (step_force == "total")

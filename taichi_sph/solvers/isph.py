@@ -5,7 +5,8 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
 1. neighbours; rho_a = sum_b m_b W_ab / (lattice kernel sum), so that a full lattice has rho0 exactly.
    Free surface: kernel sum below `isph.free_surface_threshold` x the lattice sum, or below 0.97 with
    no fluid neighbour in the 45-degree cone around the outward normal (a contact line, where the wall
-   fills the kernel sum). These particles get the Dirichlet pressure p = p_b + (dx/2) |rho0 (g - a)| (the
+   fills the kernel sum), or (`isph.one_sided_ratio`) below 0.97 with a one-sided support by the
+   projection's self ratio (physics/free_surface.py): see "one-sided supports" below. These particles get the Dirichlet pressure p = p_b + (dx/2) |rho0 (g - a)| (the
    pressure half a spacing below the surface, p_b in free fall; a is last step's acceleration averaged
    over the fluid neighbours, so one particle's spike does not feed its own next pressure; the ambient
    pressure p_b is `fluid.background_pressure`, 0 in free-surface scenes) and are not unknowns.
@@ -59,6 +60,24 @@ speed in D, Sun et al. 2017), on in the drop scenes, and a cell-centred fluid_sp
 takes h = 1.6 dx: 0.63 dx, 0.67%, max density error 4.0% -> 3.35%, all of it at full-support particles). tests/test_drops.py runs the
 stretched drop to t = 0.3 s and asserts no void, the pair distance and the density bound.
 
+One-sided supports and the step (issue 15; the tips of configs/elliptical_drop_2d.yaml). Stretching along
+the normal crowds a tip's outer layer along the surface (0.7 dx) and opens it from the next one, so a
+surface particle's kernel sum rose to 0.83-0.89 with 19 of 32 neighbours, and a fluid particle in its scan
+cone made it a PPE unknown. Its row asked for suction, but with a one-sided support the corrected gradient
+of a pressure below the neighbours' pushes the particle out of the fluid (the p_a term of
+sum_b V_b (p_b - p_a) grad W is p_a grad C, and grad C points into the fluid): the divergence it then
+showed grew, and with it the suction (-2000 -> -4600 Pa in 10 steps), until NaN (t = 0.335 s at dx 0.015).
+`isph.one_sided_ratio` (R_a, physics/free_surface.projection_self_ratio: how much p_a moves a itself
+against how much it moves its neighbours) makes such candidates free-surface: R is 2.3 in a lattice's
+surface layer and 0.07 one below; the tip particles had 0.8-1.3, every other unknown below 0.14 (99th
+percentile). `isph.step_force: explicit` bounds the step by the predictor's acceleration only: the
+pressure's is the projection's response, ~ (rho0 - rho) h / dt^2 through the density source, so a limit
+CFL sqrt(h / |a|) on it feeds back (a shorter step, a larger response), and in the drop it held the step at
+~100 m/s^2 of such noise (cfl 0.025: 2.23% density error with the force limit on the total, 1.37% on the
+explicit part). The velocity the pressure gives is still bounded, by the CFL limit of the next step. Both
+are off by default: on the dam break each moves the shifted front RMS from 0.0392 to 0.0400-0.0401 (raw
+0.2479 -> 0.2447-0.2459), over its 0.04 bound; the wall-less free-surface scenes set them.
+
 Divergence and Laplacian are divided by their value on the initial lattice for a linear (quadratic)
 field: the Wendland C2 gradient sum is 0.974, not 1, at h = 1.3 dx.
 """
@@ -73,7 +92,7 @@ import taichi as ti
 from ..config import Config
 from ..geometry import FLUID, WALL, ParticleArrays, lattice_distances, lattice_kernel_sum
 from ..physics.momentum import monaghan_viscosity, morris_laminar_viscosity
-from ..physics.free_surface import SURFACE_CANDIDATE, in_surface_cone
+from ..physics.free_surface import SURFACE_CANDIDATE, in_surface_cone, projection_self_ratio
 from ..physics.ppe import BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE
 from ..physics.ppe_terms import (free_surface_pressure, neumann_wall_pressure_difference, ppe_source,
                                  shao_lo_laplacian_weight, velocity_divergence_term)
@@ -118,6 +137,8 @@ class ISPHSolver(SolverBase):
         self.beta = SOURCE_WEIGHT[ic.source](ic.blend)
         self.compression_only = ic.compression_only
         self.surface_threshold = ic.free_surface_threshold
+        self.one_sided = ic.one_sided_ratio is not None
+        self.one_sided_ratio = ic.one_sided_ratio if self.one_sided else 0.0
         self.surface_depth = 0.5 * self.dx
         self.lattice_sum = lattice_kernel_sum(cfg, self.kernel.w_np)
         self.grad_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np)
@@ -138,6 +159,9 @@ class ISPHSolver(SolverBase):
         self.residuals: list[float] = []
         self.pure_neumann_steps = 0
         self.ppe_seconds = 0.0  # wall time in the PPE solves (assembly excluded)
+        # largest predictor acceleration |g + viscous| of the last step: the force limit of `isph.step_force: explicit`
+        self.explicit_step_force = ic.step_force == "explicit"
+        self.explicit_acc = ti.field(float, shape=())
 
 
     # -- 1. density and free surface ------------------------------------------------------
@@ -154,6 +178,8 @@ class ISPHSolver(SolverBase):
                 xa = P.x[a]
                 rho = P.mass[a] * self.kernel.w0
                 grad_c = ti.Vector.zero(float, self.dim)
+                moment = ti.Matrix.zero(float, self.dim, self.dim)
+                grad_w_moment = ti.Matrix.zero(float, self.dim, self.dim)
                 acc_sum = P.mass[a] * self.kernel.w0 * P.acc[a]
                 w_fluid = P.mass[a] * self.kernel.w0
                 for k in range(NS.count[a]):
@@ -162,7 +188,11 @@ class ISPHSolver(SolverBase):
                     r = r_ab.norm()
                     w = self.kernel.w(r)
                     rho += P.mass[b] * w
-                    grad_c += P.mass[b] / self.rho0 * self.kernel.grad_w(r_ab, r)
+                    grad_w = self.kernel.grad_w(r_ab, r)
+                    grad_c += P.mass[b] / self.rho0 * grad_w
+                    if ti.static(self.one_sided):
+                        moment -= P.mass[b] / self.rho0 * r_ab.outer_product(grad_w)
+                        grad_w_moment += P.mass[b] / self.rho0 * grad_w.outer_product(grad_w)
                     if P.kind[b] == FLUID:
                         acc_sum += P.mass[b] * w * P.acc[b]
                         w_fluid += P.mass[b] * w
@@ -182,6 +212,10 @@ class ISPHSolver(SolverBase):
                         dist = r_ba.norm()
                         if P.kind[b] == FLUID and in_surface_cone(r_ba, dist, outward, self.support):
                             surface = False
+                    if ti.static(self.one_sided):
+                        if not surface and ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT:
+                            surface = projection_self_ratio(grad_c, moment, grad_w_moment,
+                                                            P.mass[a] / self.rho0) > self.one_sided_ratio
                 self.grad_p_estimate[a] = self.rho0 * (self.body_force(xa) - acc)
                 role = UNKNOWN
                 if surface:
@@ -242,6 +276,8 @@ class ISPHSolver(SolverBase):
                                 acc += morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,
                                                                 self.eta2, grad_w)
                 P.acc[a] = acc
+                if ti.static(self.explicit_step_force):
+                    ti.atomic_max(self.explicit_acc[None], acc.norm())
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 P.v[a] += dt * P.acc[a]
@@ -387,7 +423,11 @@ class ISPHSolver(SolverBase):
         # at rest |a| ~ 0 and |v| ~ 0: gravity still bounds the step (sqrt(h / g)); dt_free is the step
         # before the run loop shortens it to land on t_end
         cap, self.dt_cap = self.dt_cap, math.inf
-        dt_free = self.choose_dt(s["max_speed"], max(s["max_acc"], self.g_norm), 0.0)
+        max_acc = s["max_acc"]
+        if self.explicit_step_force:
+            max_acc = self.explicit_acc[None]  # (0 before the first step: gravity bounds it)
+            self.explicit_acc[None] = 0.0
+        dt_free = self.choose_dt(s["max_speed"], max(max_acc, self.g_norm), 0.0)
         self.dt_cap = cap
         dt = min(dt_free, cap)
         if self.step_count > 0:
