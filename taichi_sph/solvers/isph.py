@@ -6,7 +6,8 @@ One step, every operator at the positions x^n (Cummins & Rudman 1999 projection,
    Free surface: kernel sum below `isph.free_surface_threshold` x the lattice sum, or below 0.97 with
    no fluid neighbour in the 45-degree cone around the outward normal (a contact line, where the wall
    fills the kernel sum), or (`isph.one_sided_ratio`) below 0.97 with a one-sided support by the
-   projection's self ratio (physics/free_surface.py): see "one-sided supports" below. These particles get the Dirichlet pressure p = p_b + (dx/2) |rho0 (g - a)| (the
+   projection's self ratio (physics/free_surface.py; "One-sided supports" below). These particles get the
+   Dirichlet pressure p = p_b + (dx/2) |rho0 (g - a)| (the
    pressure half a spacing below the surface, p_b in free fall; a is last step's acceleration averaged
    over the fluid neighbours, so one particle's spike does not feed its own next pressure; the ambient
    pressure p_b is `fluid.background_pressure`, 0 in free-surface scenes) and are not unknowns.
