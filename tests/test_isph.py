@@ -9,9 +9,9 @@ import taichi as ti
 from taichi_sph.config import bundled_configs_dir, config_from_dict, load_config
 from taichi_sph.geometry import build_particles
 from taichi_sph.kernels import make_kernel
+from taichi_sph.physics.free_surface import projection_self_ratio
 from taichi_sph.physics.ppe import BB, DIRICHLET, UNKNOWN
 from taichi_sph.simulation import Simulation
-from taichi_sph.physics.free_surface import projection_self_ratio
 from taichi_sph.solvers.isph import ISPHSolver, lattice_gradient_sum
 
 

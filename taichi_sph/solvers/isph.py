@@ -251,9 +251,12 @@ class ISPHSolver(SolverBase):
     @ti.kernel
     def predict_velocity(self, dt: float):
         """a* = g + viscous (Morris laminar, Monaghan artificial); v* = v + dt a*. acc keeps a* until the
-        correction adds the pressure part. Walls enter as in WCSPH: ghost velocity when no-slip."""
+        correction adds the pressure part. Walls enter as in WCSPH: ghost velocity when no-slip.
+        With `isph.step_force: explicit` also max |a*| (explicit_acc, the next step's force limit)."""
         P = self.particles
         NS = self.nsearch
+        if ti.static(self.explicit_step_force):
+            self.explicit_acc[None] = 0.0  # (a serial task before the loop: no host write a step)
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 xa, va = P.x[a], P.v[a]
@@ -426,8 +429,7 @@ class ISPHSolver(SolverBase):
         cap, self.dt_cap = self.dt_cap, math.inf
         max_acc = s["max_acc"]
         if self.explicit_step_force:
-            max_acc = self.explicit_acc[None]  # (0 before the first step: gravity bounds it)
-            self.explicit_acc[None] = 0.0
+            max_acc = self.explicit_acc[None]  # the last predictor's (0 before the first step: gravity bounds it)
         dt_free = self.choose_dt(s["max_speed"], max(max_acc, self.g_norm), 0.0)
         self.dt_cap = cap
         dt = min(dt_free, cap)
