@@ -14,8 +14,8 @@ import subprocess
 import sys
 import tempfile
 
-from taichi_sph.config import load_config
-from taichi_sph.memory import GIB, estimate
+from taichi_sph.config.loader import load_config
+from taichi_sph.run.memory import GIB, estimate
 
 CASES = ["configs/dam_break_2d.yaml:0.025", "configs/dam_break_2d.yaml:0.0125", "configs/dam_break_2d.yaml:0.005",
          "configs/dam_break_3d.yaml:0.04", "configs/dam_break_3d.yaml:0.02", "configs/dam_break_3d.yaml:0.0125"]

@@ -1,3 +1,3 @@
-from .cli import entry
+from taichi_sph.cli.main import entry
 
 entry()

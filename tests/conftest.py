@@ -2,7 +2,7 @@ import gc
 
 import pytest
 
-from taichi_sph.runtime import init_taichi, reset
+from taichi_sph.run.runtime import init_taichi, reset
 
 
 @pytest.fixture(autouse=True, scope="module")

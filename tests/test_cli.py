@@ -1,7 +1,7 @@
 """The CLI contract for bad input: one line `error: FILE: key 'KEY': ... allowed ...` on stderr, exit code 2,
 no traceback, nothing written; plus `list` and `config-doc`.
 
-All in-process through `taichi_sph.cli.main` (no simulation runs: a bad config fails before Taichi starts),
+All in-process through `taichi_sph.cli.main.main` (no simulation runs: a bad config fails before Taichi starts),
 and one subprocess test of `python -m taichi_sph`.
 """
 
@@ -12,8 +12,9 @@ from pathlib import Path
 import pytest
 import yaml
 
-from taichi_sph.cli import main
-from taichi_sph.config import bundled_configs_dir, config_reference, load_raw
+from taichi_sph.cli.main import main
+from taichi_sph.config.docs import config_reference
+from taichi_sph.config.loader import bundled_configs_dir, load_raw
 
 GOOD = """\
 description: a small valid scene the bad inputs below are made from

@@ -8,11 +8,11 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from taichi_sph import compare as cmp
-from taichi_sph.config import bundled_configs_dir, load_config
-from taichi_sph.geometry import FLUID, WALL
-from taichi_sph.plots import side_by_side_frames
-from taichi_sph.sweep import convergence_order, default_dx_values, parse_dx_list, sweep
+from taichi_sph.config.loader import bundled_configs_dir, load_config
+from taichi_sph.render.side_by_side import side_by_side_frames
+from taichi_sph.scene.bodies import FLUID, WALL
+from taichi_sph.studies import compare as cmp
+from taichi_sph.studies.sweep import convergence_order, default_dx_values, parse_dx_list, sweep
 
 TANK = bundled_configs_dir() / "stability" / "tank.yaml"
 # 10 x 10 fluid particles, 20 output rows of a few steps each: seconds per run
@@ -104,7 +104,7 @@ def test_side_by_side_frames_label_and_pad(tmp_path):
 
 # ----------------------------------------------------------------------------- real runs
 def test_run_case_turns_a_crash_into_a_failed_summary(tmp_path, monkeypatch):
-    import taichi_sph.simulation as sim
+    import taichi_sph.run.simulation as sim
 
     class Broken:
         def __init__(self, *a, **k):

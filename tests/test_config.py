@@ -12,11 +12,12 @@ from pathlib import Path
 import pytest
 import yaml
 
-from taichi_sph.cli import main
-from taichi_sph.config import (AUTO, Config, Fluid, Particles, Time, apply_overrides, bundled_configs_dir,
-                               config_from_dict, config_reference, load_config, to_dict)
+from taichi_sph.cli.main import main
+from taichi_sph.config.docs import config_reference
+from taichi_sph.config.loader import apply_overrides, bundled_configs_dir, config_from_dict, load_config, to_dict
+from taichi_sph.config.schema import AUTO, Config, Fluid, Particles, Time
 from taichi_sph.errors import ConfigError
-from taichi_sph.output import RunFolder
+from taichi_sph.run.output import RunFolder
 
 REPO = Path(__file__).resolve().parent.parent
 BUNDLED = sorted(bundled_configs_dir().glob("*.yaml"))
@@ -288,7 +289,7 @@ def test_bundled_dam_break_sound_speed_is_ten_times_the_reference_speed():
 
 
 def test_isph_artificial_viscosity_alpha_overrides_only_isph(tmp_path):
-    from taichi_sph.features import Features
+    from taichi_sph.sph.features import Features
     base = write(tmp_path / "a.yaml", MINIMAL)
     cfg = load_config(base, ["wcsph.artificial_viscosity.alpha=0.0", "isph.artificial_viscosity_alpha=0.03"])
     assert cfg.artificial_viscosity == (0.0, 0.0)

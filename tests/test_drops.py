@@ -6,10 +6,11 @@ import math
 import numpy as np
 import pytest
 
-from taichi_sph.config import bundled_configs_dir, load_config
-from taichi_sph.geometry import build_particles, lattice_sphere
-from taichi_sph.reference import ellipse_drop_semi_axis, first_extrema_times
-from taichi_sph.simulation import Simulation
+from taichi_sph.config.loader import bundled_configs_dir, load_config
+from taichi_sph.run.simulation import Simulation
+from taichi_sph.scene.bodies import build_particles
+from taichi_sph.scene.lattice import lattice_sphere
+from taichi_sph.validation.reference import ellipse_drop_semi_axis, first_extrema_times
 
 
 def test_ellipse_reference_stretching_drop():
@@ -97,7 +98,7 @@ def test_oscillating_drop_wcsph_through_the_first_minimum(tmp_path):
 
 
 def test_bundled_ellipse_table_matches_the_ode():
-    from taichi_sph.reference import load_reference
+    from taichi_sph.validation.reference import load_reference
     data = load_reference("drop_ellipse_analytic")
     assert any("Monaghan (1994)" in line for line in data.source)
     for scene, a0, omega in (("elliptical_drop_2d", 2.0, 0.0), ("oscillating_drop_2d", 1.0, 4.0)):

@@ -6,10 +6,10 @@ import sys
 
 import pytest
 
-from taichi_sph import executor as ex
-from taichi_sph.cli import main
-from taichi_sph.config import bundled_configs_dir, load_config
-from taichi_sph.sweep import sweep
+from taichi_sph.cli.main import main
+from taichi_sph.config.loader import bundled_configs_dir, load_config
+from taichi_sph.studies import executor as ex
+from taichi_sph.studies.sweep import sweep
 
 TANK = bundled_configs_dir() / "stability" / "tank.yaml"
 # 10 x 10 fluid particles, a few steps per output row: seconds per run
@@ -79,7 +79,7 @@ def test_a_killed_case_status_running_is_run_again_on_resume(tmp_path, monkeypat
 
 
 def test_a_failed_case_does_not_stop_the_others_and_is_in_the_report(tmp_path, monkeypatch):
-    import taichi_sph.simulation as sim
+    import taichi_sph.run.simulation as sim
 
     real = sim.Simulation
 

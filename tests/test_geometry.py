@@ -5,10 +5,11 @@ import math
 import numpy as np
 import pytest
 
-from taichi_sph.config import config_from_dict
+from taichi_sph.config.expressions import evaluate_expression
+from taichi_sph.config.loader import config_from_dict
 from taichi_sph.errors import ConfigError
-from taichi_sph.geometry import (FLUID, WALL, build_particles, evaluate_expression, lattice_box, lattice_sphere,
-                                 wall_crossings)
+from taichi_sph.scene.bodies import FLUID, WALL, build_particles, wall_crossings
+from taichi_sph.scene.lattice import lattice_box, lattice_sphere
 
 
 def cfg2d(bodies, **over):

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import taichi as ti
 
-from taichi_sph.config import bundled_configs_dir, config_from_dict, load_config
-from taichi_sph.geometry import build_particles
-from taichi_sph.kernels import make_kernel
+from taichi_sph.config.loader import bundled_configs_dir, config_from_dict, load_config
+from taichi_sph.linalg.ppe import BB, DIRICHLET, UNKNOWN
 from taichi_sph.physics.free_surface import projection_self_ratio
-from taichi_sph.physics.ppe import BB, DIRICHLET, UNKNOWN
-from taichi_sph.simulation import Simulation
+from taichi_sph.run.simulation import Simulation
+from taichi_sph.scene.bodies import build_particles
 from taichi_sph.solvers.isph import ISPHSolver, lattice_gradient_sum
+from taichi_sph.sph.kernels import make_kernel
 
 
 def tank_cfg(dx=0.05, **over):
@@ -228,8 +228,8 @@ def test_density_source_corrects_compression_only():
 def _jet_crossings(clearance):
     """A 10 x 10 block shot at 3 m/s (no gravity) into the right wall of a closed box; returns the wall
     crossings at t = 0.25 s and the smallest distance to any inner face (in dx) over the run."""
-    from taichi_sph.geometry import wall_crossings
-    from taichi_sph.simulation import make_solver
+    from taichi_sph.scene.bodies import wall_crossings
+    from taichi_sph.solvers.registry import make_solver
     dx = 0.02
     cfg = config_from_dict({
         "name": "jet", "dim": 2, "solver": "isph",
@@ -264,7 +264,7 @@ def test_kinematic_wall_condition_holds_a_splash_off_the_walls():
 
 
 def test_wall_face_planes_of_a_box_and_a_block():
-    from taichi_sph.geometry import wall_face_planes
+    from taichi_sph.scene.bodies import wall_face_planes
     cfg = config_from_dict({
         "name": "planes", "dim": 2, "domain": {"lo": [-0.2, -0.2], "hi": [1.2, 1.2]},
         "particles": {"dx": 0.1}, "fluid": {"reference_speed": 1.0},

@@ -10,7 +10,7 @@ import pytest
 import taichi as ti
 
 from taichi_sph.errors import ConfigError
-from taichi_sph.kernels import KERNEL_NAMES, SPHKernel, make_kernel, support_factor
+from taichi_sph.sph.kernels import KERNEL_NAMES, SPHKernel, make_kernel, support_factor
 
 DIMS = (1, 2, 3)
 H_TAICHI = 0.7  # smoothing length of the kernels compiled into Taichi (not 1, so q = r/h rounds)

@@ -5,10 +5,10 @@ import math
 import numpy as np
 import pytest
 
-from taichi_sph import reference as ref
-from taichi_sph.config import config_from_dict
+from taichi_sph.config.loader import config_from_dict
 from taichi_sph.errors import ConfigError
-from taichi_sph.metrics import ProbePressureMetric
+from taichi_sph.validation import reference as ref
+from taichi_sph.validation.metrics import ProbePressureMetric
 
 
 def buchner_cfg(**metric):

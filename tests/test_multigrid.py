@@ -13,14 +13,14 @@ import sys
 import numpy as np
 import pytest
 import taichi as ti
-
-from taichi_sph.config import PPE, bundled_configs_dir, load_config
-from taichi_sph.geometry import build_particles
-from taichi_sph.physics.multigrid import COARSEST_CELLS, grid_levels
-from taichi_sph.physics.ppe import BB, N_DIRICHLET, N_UNKNOWN, RZ_NEW, SUM_B, UNKNOWN
-from taichi_sph.solvers.isph import ISPHSolver
-
 from test_isph import apply_matrix, assembled, manufactured, tank_cfg
+
+from taichi_sph.config.loader import bundled_configs_dir, load_config
+from taichi_sph.config.schema import PPE
+from taichi_sph.linalg.multigrid import COARSEST_CELLS, grid_levels
+from taichi_sph.linalg.ppe import BB, N_DIRICHLET, N_UNKNOWN, RZ_NEW, SUM_B, UNKNOWN
+from taichi_sph.scene.bodies import build_particles
+from taichi_sph.solvers.isph import ISPHSolver
 
 MGCG = {"ppe": {"solver": "mgcg"}}
 
@@ -224,7 +224,7 @@ def test_level_kernels_and_the_one_thread_cycle_apply_the_same_preconditioner(mo
     """Large cell levels run a kernel per pass (GPU, or the CPU's thread pool), small ones one kernel on one
     thread: with every level made 'large' the V-cycle gives the same z = M r (Jacobi sweeps and restriction
     sums do not depend on the order)."""
-    import taichi_sph.physics.multigrid as mg
+    import taichi_sph.linalg.multigrid as mg
     z = {}
     for name, cells in (("one_thread", mg.SERIAL_CELLS), ("per_level", {"cpu": 0, "gpu": 0})):
         monkeypatch.setattr(mg, "SERIAL_CELLS", cells)
@@ -241,7 +241,7 @@ def test_ppe_loop_schedules_give_bit_identical_runs(method):
     """On the CPU every PPE reduction sums fixed blocks in a fixed order (physics/reduction.py), so the
     one-thread and the thread-pool schedule (and the probe that times both) give the same run bit for bit.
     With parallel float atomics two dam-break runs drifted apart by ~3e-6 m."""
-    from taichi_sph.simulation import make_solver
+    from taichi_sph.solvers.registry import make_solver
     cfg = load_config(bundled_configs_dir() / "dam_break_2d.yaml", ["particles.dx=0.04", "solver=isph",
                                                                     f"isph.ppe.solver={method}"])
     states = []

@@ -5,7 +5,7 @@ import pytest
 import taichi as ti
 
 from taichi_sph.errors import ConfigError
-from taichi_sph.neighbors import NeighborSearch
+from taichi_sph.sph.neighbors import NeighborSearch
 
 TOL = 1e-5  # pairs within TOL * support of the cut-off may go either way (float32 positions)
 
@@ -182,7 +182,7 @@ def test_fields_follow_the_particles_and_cells_are_sorted():
     fields = [v, pid, mass, kind, tensor, rows]
 
     ns = NeighborSearch(dim, n, lo, hi, support, (False, False), 64)
-    for step in range(3):
+    for _ in range(3):
         ids_before = pid.to_numpy()
         ns.build(x, fields)
         ids = pid.to_numpy()

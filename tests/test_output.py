@@ -10,8 +10,7 @@ import pytest
 import yaml
 
 from taichi_sph.errors import UsageError
-from taichi_sph.output import (Progress, RunFolder, TimeseriesWriter, load_snapshot, read_pvd,
-                               read_timeseries, to_jsonable)
+from taichi_sph.run.output import Progress, RunFolder, TimeseriesWriter, load_snapshot, read_pvd, read_timeseries, to_jsonable
 
 
 @pytest.fixture

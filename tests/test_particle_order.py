@@ -3,11 +3,13 @@
 import numpy as np
 import pytest
 
-from taichi_sph.config import config_from_dict
-from taichi_sph.geometry import FLUID, ParticleArrays, lattice_box, lattice_kernel_sum
-from taichi_sph.output import read_timeseries
-from taichi_sph.particle_order import ORDER_COLUMNS, OrderProbe, ParticleOrderLog
-from taichi_sph.simulation import Simulation, make_solver
+from taichi_sph.config.loader import config_from_dict
+from taichi_sph.run.output import read_timeseries
+from taichi_sph.run.simulation import Simulation
+from taichi_sph.scene.bodies import FLUID, ParticleArrays
+from taichi_sph.scene.lattice import lattice_box, lattice_kernel_sum
+from taichi_sph.solvers.registry import make_solver
+from taichi_sph.validation.particle_order import ORDER_COLUMNS, OrderProbe, ParticleOrderLog
 
 DX = 0.1
 CELLS = {1: 40, 2: 30, 3: 14}  # lattice sites per axis
@@ -198,7 +200,7 @@ def test_order_log_extremes_and_warnings():
 @pytest.mark.parametrize("solver", ["wcsph", "isph"])
 def test_order_columns_in_a_real_run(tmp_path, solver):
     """dam_break_2d at dx = 0.05, t = 0.1 s: the columns in timeseries.csv, the block in summary.json."""
-    from taichi_sph.config import bundled_configs_dir, load_config
+    from taichi_sph.config.loader import bundled_configs_dir, load_config
     cfg = load_config(bundled_configs_dir() / "dam_break_2d.yaml",
                       ["particles.dx=0.05", "time.t_end=0.1", "output.every=0.05", f"solver={solver}"])
     res = Simulation(cfg, tmp_path, render=False, quiet=True).run()
@@ -220,7 +222,7 @@ def test_order_columns_in_a_real_run(tmp_path, solver):
 
 def test_void_grid_ignores_an_unstable_state():
     """A blown-up run's state (inf, NaN, 1e30) at its last output: no grid the size of 1e30 / dx."""
-    from taichi_sph.particle_order import void_particles
+    from taichi_sph.validation.particle_order import void_particles
     x = lattice_box((0.0, 0.0), (1.0, 1.0), DX)
     x[3], x[5], x[7] = [1e30, np.nan], [np.inf, -np.inf], [-1e30, 0.5]
     c = np.where(np.arange(len(x)) < 20, 0.5, 1.0)

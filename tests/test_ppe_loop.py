@@ -7,13 +7,12 @@ import math
 
 import numpy as np
 import pytest
-
-from taichi_sph.config import bundled_configs_dir, load_config
-from taichi_sph.geometry import build_particles
-from taichi_sph.instrument import count_host_traffic
-from taichi_sph.simulation import make_solver
-
 from test_isph import tank_cfg
+
+from taichi_sph.config.loader import bundled_configs_dir, load_config
+from taichi_sph.run.instrument import count_host_traffic
+from taichi_sph.scene.bodies import build_particles
+from taichi_sph.solvers.registry import make_solver
 
 
 def dam_break(method: str, check_every: int):
@@ -55,8 +54,8 @@ def test_runs_do_not_depend_on_check_every(method):
 def test_jacobi_stops_on_the_iteration_and_does_not_depend_on_check_every():
     """Jacobi's test is on the residual of the current iterate: the count need not be a multiple of check_every,
     and the run is the same for check_every 1 and 7."""
+    from taichi_sph.scene.bodies import build_particles as build
     from taichi_sph.solvers.isph import ISPHSolver
-    from taichi_sph.geometry import build_particles as build
     out = {}
     for k in (1, 7):
         cfg = tank_cfg(isph={"ppe": {"solver": "jacobi", "check_every": k}})

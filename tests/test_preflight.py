@@ -10,12 +10,11 @@ from pathlib import Path
 
 import pytest
 import yaml
-
-from taichi_sph import memory
-from taichi_sph.config import bundled_configs_dir, load_config
-from taichi_sph.geometry import build_particles
-
 from test_cli import GOOD, assert_user_error, cli, run_and_check  # noqa: F401 (fixtures below)
+
+from taichi_sph.config.loader import bundled_configs_dir, load_config
+from taichi_sph.run import memory
+from taichi_sph.scene.bodies import build_particles
 
 REPO = Path(__file__).resolve().parent.parent
 

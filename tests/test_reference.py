@@ -1,9 +1,10 @@
-"""Reference tables, analytic solutions and error metrics (taichi_sph.reference, taichi_sph.diagnostics)."""
+"""Reference tables, analytic solutions and error metrics (taichi_sph.validation.reference, taichi_sph.validation.diagnostics)."""
 
 import numpy as np
 import pytest
 
-from taichi_sph import diagnostics, reference as ref
+from taichi_sph.validation import diagnostics
+from taichi_sph.validation import reference as ref
 
 
 def test_load_reference_columns_and_source():

@@ -14,8 +14,7 @@ import yaml
 
 from taichi_sph import render
 from taichi_sph.errors import ConfigError, RenderUnavailable
-from taichi_sph.render import (VIRIDIS, FrameRenderer, RenderSettings, assemble_video, colour_values,
-                               particle_values, render_run, text_mask)
+from taichi_sph.render import VIRIDIS, FrameRenderer, RenderSettings, assemble_video, colour_values, particle_values, render_run, text_mask
 
 WHITE = np.array([255, 255, 255])
 
@@ -129,7 +128,7 @@ def test_3d_block_renders():
 def test_missing_vulkan_is_one_clear_line(monkeypatch):
     monkeypatch.setenv("VK_ICD_FILENAMES", "/nonexistent.json")
     monkeypatch.setenv("VK_DRIVER_FILES", "/nonexistent.json")
-    assert render._probe_vulkan() is False
+    assert render.probe_vulkan() is False
     monkeypatch.setattr(render.scene, "vulkan_available", lambda: False)
     with pytest.raises(RenderUnavailable, match="apt-get install -y mesa-vulkan-drivers") as err:
         FrameRenderer(RenderSettings(width=200, height=120), 2, (0, 0), (1, 1), 4, 0.1)
@@ -199,10 +198,10 @@ def test_3d_dam_break_fluid_not_hidden_by_the_near_wall():
     """The tank's near walls are cut away: the fluid column fills the frame's middle third. With the walls
     culled against the domain box (which lies outside the tank) instead, the front wall hid the column's
     lower half and this fraction was 0.094 (now 0.19)."""
-    from taichi_sph.config import load_config
-    from taichi_sph.geometry import build_particles
-
     from pathlib import Path
+
+    from taichi_sph.config.loader import load_config
+    from taichi_sph.scene.bodies import build_particles
 
     cfg = load_config(Path(__file__).resolve().parents[1] / "configs/dam_break_3d.yaml", ["particles.dx=0.04"])
     a = build_particles(cfg)

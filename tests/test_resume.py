@@ -14,11 +14,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from taichi_sph.checkpoint import CHECKPOINT_NAME, read_checkpoint
-from taichi_sph.output import load_snapshot, read_timeseries
-
 from test_cli import assert_user_error, cli
+
+from taichi_sph.run.checkpoint import CHECKPOINT_NAME, read_checkpoint
+from taichi_sph.run.output import load_snapshot, read_timeseries
 
 REPO = Path(__file__).resolve().parent.parent
 SCENE = REPO / "configs" / "dam_break_2d.yaml"
@@ -55,7 +54,7 @@ def stop_after(out: Path, rows: int, sig: int) -> int:
 def reference(tmp_path_factory) -> Path:
     """The uninterrupted run (in-process)."""
     out = tmp_path_factory.mktemp("reference") / "run"
-    from taichi_sph.cli import main
+    from taichi_sph.cli.main import main
     assert main(run_argv(out)) == 0
     return out
 
@@ -181,9 +180,9 @@ def test_isph_interrupted_run_resumes_within_the_run_to_run_spread(tmp_path, mon
     rows written before the checkpoint byte for byte, and hold each output time once."""
     import os
 
-    import taichi_sph.simulation as simulation
-    from taichi_sph.checkpoint import load_resume
-    from taichi_sph.config import load_config
+    import taichi_sph.run.simulation as simulation
+    from taichi_sph.config.loader import load_config
+    from taichi_sph.run.checkpoint import load_resume
 
     cfg = load_config(SCENE, SETS + ["solver=isph", "time.t_end=0.5", "output.checkpoint_every=0.1"])
     ref = simulation.Simulation(cfg, tmp_path / "ref", render=False, quiet=True).run()
@@ -225,7 +224,7 @@ class FakeField:
 
 
 def test_a_checkpoint_that_fails_midway_leaves_the_previous_one(tmp_path):
-    from taichi_sph.checkpoint import write_checkpoint
+    from taichi_sph.run.checkpoint import write_checkpoint
     path = tmp_path / CHECKPOINT_NAME
     write_checkpoint(path, {"solver.x": FakeField(np.arange(6.0).reshape(3, 2)), "solver.g": FakeField(np.float32(2))},
                      {"solver.stats_host": np.ones(5, np.float32)}, {"t": 0.1})
@@ -240,7 +239,7 @@ def test_a_checkpoint_that_fails_midway_leaves_the_previous_one(tmp_path):
 
 def test_summary_is_replaced_atomically(tmp_path, monkeypatch):
     """A reader never sees half a summary.json: the old one stays until the new one is complete."""
-    import taichi_sph.output as output
+    import taichi_sph.run.output as output
     folder = output.RunFolder(tmp_path)
     folder.write_summary({"status": "running", "t": 0.1})
 

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from taichi_sph.config import load_config
-from taichi_sph.geometry import build_particles
-from taichi_sph.rewind import SolverMemento
-from taichi_sph.simulation import make_solver
+from taichi_sph.config.loader import load_config
+from taichi_sph.run.rewind import SolverMemento
+from taichi_sph.scene.bodies import build_particles
+from taichi_sph.solvers.registry import make_solver
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from taichi_sph.config import bundled_configs_dir, load_config
+from taichi_sph.config.expressions import square_poisson
+from taichi_sph.config.loader import bundled_configs_dir, load_config
 from taichi_sph.errors import ConfigError
-from taichi_sph.geometry import FLUID, build_particles
-from taichi_sph.reference import (load_reference, rotating_square_inertia_curvature, rotating_square_pressure,
-                                  square_poisson)
-from taichi_sph.simulation import Simulation
+from taichi_sph.run.simulation import Simulation
+from taichi_sph.scene.bodies import FLUID, build_particles
+from taichi_sph.validation.reference import load_reference, rotating_square_inertia_curvature, rotating_square_pressure
 
 CONFIG = bundled_configs_dir() / "rotating_square_2d.yaml"
 
@@ -155,7 +155,7 @@ def test_tensile_instability_control_region_follows_the_particles_through_a_rebu
     """The free-surface region is set by the shift, before the neighbour rebuild that may reorder the particles, and
     read by the force pass after it: it must be reordered with them (it was not, at first: on rebuild steps the
     force pass read another particle's flag)."""
-    from taichi_sph.simulation import make_solver
+    from taichi_sph.solvers.registry import make_solver
     cfg = load_config(CONFIG, ["solver=wcsph", "particles.dx=0.1"])
     solver = make_solver(cfg, build_particles(cfg))
     assert solver.shifting.surface_region in solver.particles.persistent_fields

@@ -9,7 +9,7 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from taichi_sph.cli import main
+from taichi_sph.cli.main import main
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -53,7 +53,7 @@ def test_no_render_does_not_import_the_renderer(tmp_path):
     run = tmp_path / "nr"
     script = (
         "import sys\n"
-        "from taichi_sph.cli import main\n"
+        "from taichi_sph.cli.main import main\n"
         f"code = main(['run', {str(CONFIGS / 'column_1d.yaml')!r}, '--out', {str(run)!r}, '--quiet', "
         "'--t-end', '0.01', '--no-render'])\n"
         "assert 'taichi_sph.render' not in sys.modules, 'renderer imported'\n"

@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from taichi_sph import stability as st
-from taichi_sph.checks import CheckResult, a_priori_checks, severe_checks, time_step_limits
-from taichi_sph.config import bundled_configs_dir, load_config
-from taichi_sph.geometry import FLUID, WALL
+from taichi_sph.config.loader import bundled_configs_dir, load_config
+from taichi_sph.run.checks import CheckResult, a_priori_checks, severe_checks, time_step_limits
+from taichi_sph.scene.bodies import FLUID, WALL
+from taichi_sph.studies import stability as st
 
 SCENES = bundled_configs_dir() / "stability"
 
@@ -127,7 +127,7 @@ def test_battery_scenes_are_well_posed_and_the_extremes_are_flagged():
 
 # ----------------------------------------------------------------------------- report
 def test_markdown_and_map_from_synthetic_result(tmp_path):
-    from taichi_sph.plots import plot_stability_map
+    from taichi_sph.studies.plots import plot_stability_map
 
     rows = [{"case": "tank", "solver": "wcsph", "verdict": "stable", "criterion": None, "reason": "", "note": "at rest",
              "expected": "stable", "as_expected": True, "max_density_error": 0.005, "energy_drift": -1e-4},
@@ -172,7 +172,7 @@ def test_five_times_the_cfl_limit_is_classified_unstable(tmp_path):
 def test_battery_on_a_process_pool_assembles_rows_from_the_case_folders(tmp_path):
     """Two tiny cases on two spawned processes: the refused one is run anyway and its evidence reported,
     and stability.json is assembled from runs/<case>-<solver>/summary.json."""
-    from taichi_sph.executor import Dispatch
+    from taichi_sph.studies.executor import Dispatch
 
     overrides = ("particles.dx=0.04", "domain.lo=[-0.2, -0.2]", "domain.hi=[0.8, 1.2]", "time.t_end=0.3",
                  "wcsph.artificial_viscosity.alpha=0", "wcsph.density_diffusion.model=none",

@@ -8,14 +8,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from taichi_sph import reference as ref
-from taichi_sph.config import load_config
+from taichi_sph.config.loader import load_config
 from taichi_sph.errors import ConfigError
-from taichi_sph.geometry import FLUID, WALL, lattice_box
-from taichi_sph.metrics import make_metrics
-from taichi_sph.simulation import Simulation
-from taichi_sph.validation_metrics import (CavityMetric, PoiseuilleMetric, TaylorGreenMetric, binned_profile,
-                                           centerline_samples)
+from taichi_sph.run.simulation import Simulation
+from taichi_sph.scene.bodies import FLUID, WALL
+from taichi_sph.scene.lattice import lattice_box
+from taichi_sph.validation import reference as ref
+from taichi_sph.validation.metrics import make_metrics
+from taichi_sph.validation.metrics.flows import CavityMetric, PoiseuilleMetric, TaylorGreenMetric, binned_profile, centerline_samples
 
 erfc = np.vectorize(math.erfc)  # scipy is not a dependency
 

@@ -20,10 +20,10 @@ import imageio.v3 as iio
 import numpy as np
 import pytest
 
-from taichi_sph.cli import main
-from taichi_sph.config import load_config
+from taichi_sph.cli.main import main
+from taichi_sph.cli.view import Viewer, display_problem, panel_rect
+from taichi_sph.config.loader import load_config
 from taichi_sph.render import VIRIDIS, WALL_GREY, FrameLayout, FrameRenderer, RenderSettings, particle_values
-from taichi_sph.view import Viewer, display_problem, panel_rect
 
 ROOT = Path(__file__).resolve().parents[1]
 SMALL_2D = ["--set", "particles.dx=0.05", "--set", "render.width=480", "--set", "render.height=270"]

@@ -2,9 +2,9 @@
 
 import numpy as np
 
-from taichi_sph.config import bundled_configs_dir, config_from_dict, load_config
-from taichi_sph.geometry import FLUID, WALL, build_particles, wall_face_planes
-from taichi_sph.simulation import make_solver
+from taichi_sph.config.loader import bundled_configs_dir, config_from_dict, load_config
+from taichi_sph.scene.bodies import FLUID, WALL, build_particles, wall_face_planes
+from taichi_sph.solvers.registry import make_solver
 
 U = 1.0       # top plate speed [m/s]
 H = 0.5       # gap [m]

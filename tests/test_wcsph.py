@@ -1,15 +1,14 @@
 """Short WCSPH runs with asserted numbers (small particle counts, short times)."""
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from taichi_sph.config import config_from_dict, load_config
-from taichi_sph.geometry import FLUID
-from taichi_sph.simulation import Simulation
-
-from pathlib import Path
+from taichi_sph.config.loader import config_from_dict, load_config
+from taichi_sph.run.simulation import Simulation
+from taichi_sph.scene.bodies import FLUID
 
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
@@ -76,8 +75,8 @@ def periodic_box_cfg(steps_dt: float):
 
 def test_momentum_conserved_periodic_random_velocities():
     """Symmetric pair forces: total momentum constant to 1e-5 of sum m|v| over 1000 f32 steps."""
-    from taichi_sph.geometry import build_particles
-    from taichi_sph.simulation import make_solver
+    from taichi_sph.scene.bodies import build_particles
+    from taichi_sph.solvers.registry import make_solver
     cfg = periodic_box_cfg(5e-4)
     arrays = build_particles(cfg)
     solver = make_solver(cfg, arrays)
@@ -104,7 +103,7 @@ def test_dam_break_short_no_wall_crossing(tmp_path):
     assert s["status"] == "ok"
     assert s["conservation"]["wall_crossings"] == 0
     # the front has left the column (Z > 1.3 by T = 1.3) but not run away (Z < 2.5)
-    from taichi_sph.output import read_timeseries
+    from taichi_sph.run.output import read_timeseries
     ts = read_timeseries(tmp_path / "run" / "timeseries.csv")
     z_end = ts["front_Z"][-1]
     assert z_end > 1.3 and z_end < 2.5
@@ -158,8 +157,8 @@ def test_reflecting_floor_keeps_particles_in_the_domain():
 def test_continuity_rate_matches_divergence(diffusion):
     """v = -0.1 (x - c): div v = -0.2 (2D), so d rho / dt = 0.2 rho inside the block (delta-SPH adds
     nothing on a uniform density). Quintic at h = dx: lattice gradient exact to 0.1%; 2% bound."""
-    from taichi_sph.geometry import build_particles
-    from taichi_sph.simulation import make_solver
+    from taichi_sph.scene.bodies import build_particles
+    from taichi_sph.solvers.registry import make_solver
     cfg = config_from_dict({
         "name": "compression", "dim": 2, "domain": {"lo": [-1.0, -1.0], "hi": [1.0, 1.0]},
         "particles": {"dx": 0.02, "hdx": 1.0, "kernel": "quintic_spline"},
@@ -191,8 +190,8 @@ def test_f64_precision_runs_in_float64(tmp_path):
 
 
 def _dam_break_solver(schedule_serial):
-    from taichi_sph.geometry import build_particles
-    from taichi_sph.simulation import make_solver
+    from taichi_sph.scene.bodies import build_particles
+    from taichi_sph.solvers.registry import make_solver
     cfg = load_config(CONFIGS / "dam_break_2d.yaml", ["particles.dx=0.05"])
     solver = make_solver(cfg, build_particles(cfg))
     solver.schedule.serial = schedule_serial
@@ -272,6 +271,7 @@ def test_hydrostatic_density_difference_matches_the_exact_power():
     the float64 power to f32 rounding, on both sides of the switch and for two gammas (the series is the more
     accurate: no cancellation in (1 - e)^k - 1)."""
     import taichi as ti
+
     from taichi_sph.physics.density import hydrostatic_density_difference
     rho0, b = 1000.0, 5.6e5
     e = np.concatenate([np.linspace(-0.03, 0.03, 61), [-0.0099999, 0.0099999, 0.0100001, 1e-7, 0.0]])

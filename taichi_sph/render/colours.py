@@ -10,8 +10,8 @@ from typing import Mapping
 
 import numpy as np
 
-from ..errors import ConfigError
-from .settings import COLOUR_FIELDS
+from taichi_sph.errors import ConfigError
+from taichi_sph.render.settings import COLOUR_FIELDS
 
 BACKGROUND = (1.0, 1.0, 1.0)
 WALL_GREY = (0.80, 0.80, 0.80)

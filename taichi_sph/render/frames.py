@@ -16,11 +16,11 @@ from typing import Mapping
 
 import numpy as np
 
-from ..errors import SPHError
-from . import scene
-from .colours import particle_colours
-from .overlay import FrameLayout
-from .settings import RenderSettings
+from taichi_sph.errors import SPHError
+from taichi_sph.render import scene
+from taichi_sph.render.colours import particle_colours
+from taichi_sph.render.overlay import FrameLayout
+from taichi_sph.render.settings import RenderSettings
 
 _OPEN: weakref.WeakSet = weakref.WeakSet()  # renderers whose window is still open
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..errors import ConfigError
-from .colours import BACKGROUND, FLUID_BLUE, TEXT_COLOUR, WALL_GREY, colormap, to_u8
+from taichi_sph.errors import ConfigError
+from taichi_sph.render.colours import BACKGROUND, FLUID_BLUE, TEXT_COLOUR, WALL_GREY, colormap, to_u8
 
 TITLES = {"speed": ["speed"], "pressure": ["pressure"], "density_error": ["density", "error"], "kind": []}
 _NUMBER_CHARS = 9  # widest label "%.3g" writes: "-1.23e+05"

@@ -18,9 +18,9 @@ import tempfile
 
 import numpy as np
 
-from ..errors import ConfigError, RenderUnavailable, SPHError
-from .colours import BACKGROUND, TEXT_COLOUR
-from .overlay import FrameLayout, rectangles
+from taichi_sph.errors import ConfigError, RenderUnavailable, SPHError
+from taichi_sph.render.colours import BACKGROUND, TEXT_COLOUR
+from taichi_sph.render.overlay import FrameLayout, rectangles
 
 VULKAN_FIX = "apt-get install -y mesa-vulkan-drivers (Debian)"
 FOV_DEG = 45.0  # vertical field of view of the 3D camera
@@ -32,7 +32,7 @@ _PROBE = (
 )
 
 
-def _probe_vulkan(timeout_s: float = 120.0) -> bool:
+def probe_vulkan(timeout_s: float = 120.0) -> bool:
     """Open a tiny GGUI window in a child process. A missing or broken driver can't crash the caller."""
     try:
         with tempfile.TemporaryDirectory() as scratch:  # where the child's imgui.ini goes
@@ -45,7 +45,7 @@ def _probe_vulkan(timeout_s: float = 120.0) -> bool:
 @functools.cache
 def vulkan_available() -> bool:
     """True when GGUI can open an offscreen window (checked once per process, about 0.5 s)."""
-    return _probe_vulkan()
+    return probe_vulkan()
 
 
 def unavailable(detail: str = "") -> RenderUnavailable:

@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields
 from typing import Any, Mapping
 
-from ..errors import ConfigError
+from taichi_sph.errors import ConfigError
 
 COLOUR_FIELDS = ("speed", "pressure", "density_error", "kind")
 VIDEO_FORMATS = ("mp4", "gif", "none")

@@ -8,10 +8,11 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from ..errors import SPHError
-from .colours import frame_range, particle_values, shared_range
-from .frames import FrameRenderer
-from .settings import RenderSettings
+from taichi_sph.errors import SPHError
+from taichi_sph.render.colours import frame_range, particle_values, shared_range
+from taichi_sph.render.frames import FrameRenderer
+from taichi_sph.render.settings import RenderSettings
+from taichi_sph.render.side_by_side import side_by_side_frames
 
 
 # ----------------------------------------------------------------------------- video
@@ -173,10 +174,8 @@ def render_run(run_dir: Path, settings: RenderSettings | None = None) -> list[Pa
 def render_side_by_side(run_dirs: Mapping[str, Path], out_dir: Path, settings: RenderSettings) -> list[Path]:
     """Panels of several runs of one scene, drawn from their snapshots in time order with ONE colour range
     per composed frame (the union of the panels' ranges, or settings.range), so that equal colours mean
-    equal values across panels; composed next to each other under labels (plots.side_by_side_frames)
+    equal values across panels; composed next to each other under labels (side_by_side.side_by_side_frames)
     into out_dir/frame_*.png. A run with fewer snapshots repeats its last. Returns the composed frames."""
-    from ..plots import side_by_side_frames
-
     snaps = {label: _snapshots_in_time_order(d) for label, d in run_dirs.items()}
     snaps = {label: s for label, s in snaps.items() if s}
     if not snaps:

@@ -6,16 +6,17 @@ import math
 import numpy as np
 import taichi as ti
 
-from ..config import AUTO, Config
-from ..features import Features
-from ..geometry import FLUID, WALL, ParticleArrays, lattice_kernel_sum, max_neighbors_for, tait_b, wall_face_planes
-from ..kernels import make_kernel
-from ..neighbors import NeighborSearch
-from ..particles import ParticleFields, np_float
-from ..physics.body_force import harmonic_central_force
-from ..physics.eos import tait_density, tait_pressure
-from ..physics.walls import adami_wall_pressure, adami_wall_velocity, kinematic_wall_condition
-from .clock import DeviceClock
+from taichi_sph.config.schema import AUTO, Config
+from taichi_sph.physics.body_force import harmonic_central_force
+from taichi_sph.physics.eos import tait_density, tait_pressure
+from taichi_sph.physics.walls import adami_wall_pressure, adami_wall_velocity, kinematic_wall_condition
+from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays, tait_b, wall_face_planes
+from taichi_sph.scene.lattice import lattice_kernel_sum, max_neighbors_for
+from taichi_sph.solvers.clock import DeviceClock
+from taichi_sph.sph.features import Features
+from taichi_sph.sph.kernels import make_kernel
+from taichi_sph.sph.neighbors import NeighborSearch
+from taichi_sph.sph.particles import ParticleFields, np_float
 
 
 def _is_plain(value) -> bool:

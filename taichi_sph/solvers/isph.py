@@ -90,15 +90,21 @@ import time
 import numpy as np
 import taichi as ti
 
-from ..config import Config
-from ..geometry import FLUID, WALL, ParticleArrays, lattice_distances, lattice_kernel_sum
-from ..physics.momentum import monaghan_viscosity, morris_laminar_viscosity
-from ..physics.free_surface import SURFACE_CANDIDATE, in_surface_cone, projection_self_ratio
-from ..physics.ppe import BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE
-from ..physics.ppe_terms import (free_surface_pressure, neumann_wall_pressure_difference, ppe_source,
-                                 shao_lo_laplacian_weight, velocity_divergence_term)
-from .base import SolverBase
-from .shifting import ParticleShifting
+from taichi_sph.config.schema import Config
+from taichi_sph.linalg.ppe import BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE
+from taichi_sph.physics.free_surface import SURFACE_CANDIDATE, in_surface_cone, projection_self_ratio
+from taichi_sph.physics.momentum import monaghan_viscosity, morris_laminar_viscosity
+from taichi_sph.physics.ppe_terms import (
+    free_surface_pressure,
+    neumann_wall_pressure_difference,
+    ppe_source,
+    shao_lo_laplacian_weight,
+    velocity_divergence_term,
+)
+from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays
+from taichi_sph.scene.lattice import lattice_distances, lattice_kernel_sum
+from taichi_sph.solvers.base import SolverBase
+from taichi_sph.solvers.shifting import ParticleShifting
 
 # source weight beta in s = (1 - beta) s_divergence + beta s_density, per `isph.source`
 SOURCE_WEIGHT = {"divergence": lambda blend: 0.0, "density_invariance": lambda blend: 1.0, "blend": lambda blend: blend}

@@ -26,7 +26,8 @@ The speed U (`shifting.model`):
 import numpy as np
 import taichi as ti
 
-from ..geometry import FLUID, lattice_kernel_sum
+from taichi_sph.scene.bodies import FLUID
+from taichi_sph.scene.lattice import lattice_kernel_sum
 
 
 @ti.func

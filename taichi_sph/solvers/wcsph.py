@@ -17,14 +17,19 @@ import time
 import numpy as np
 import taichi as ti
 
-from ..config import AUTO, Config
-from ..geometry import FLUID, WALL, ParticleArrays
-from ..physics.density import continuity_rate, hydrostatic_density_difference, molteni_diffusion
-from ..physics.momentum import (difference_pressure_gradient, monaghan_tensile_correction, monaghan_viscosity,
-                                morris_laminar_viscosity, symmetric_pressure_gradient)
-from .base import LoopSchedule, SolverBase
-from .clock import DT_LIMITS, DeviceClock
-from .shifting import ParticleShifting
+from taichi_sph.config.schema import AUTO, Config
+from taichi_sph.physics.density import continuity_rate, hydrostatic_density_difference, molteni_diffusion
+from taichi_sph.physics.momentum import (
+    difference_pressure_gradient,
+    monaghan_tensile_correction,
+    monaghan_viscosity,
+    morris_laminar_viscosity,
+    symmetric_pressure_gradient,
+)
+from taichi_sph.scene.bodies import FLUID, ParticleArrays
+from taichi_sph.solvers.base import LoopSchedule, SolverBase
+from taichi_sph.solvers.clock import DT_LIMITS, DeviceClock
+from taichi_sph.solvers.shifting import ParticleShifting
 
 
 @ti.data_oriented

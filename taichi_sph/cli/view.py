@@ -1,0 +1,413 @@
+"""`taichi-sph view CONFIG`: a scene live in a GGUI window, stepped and drawn every frame.
+
+The window draws through the same code as the offscreen frames (render.scene.ParticleDrawer for the
+particles, render.overlay for the label and colour bar, drawn here as quads instead of burned into
+an image), so a window frame and an offscreen frame of the same state agree pixel for pixel outside
+the controls panel.
+
+Each frame steps the solver for as long as the frame budget (1/30 s minus the last frame's drawing
+and writing time) allows, at least one step, then draws. The panel reads out the time, steps/s, the
+real-time factor, frames/s and what a frame costs (stepping, drawing and writing apart). Reset
+rewinds the solver in memory (rewind.SolverMemento).
+
+No display: GLFW cannot start and Taichi ends the whole process with status 1, so the display is
+checked before the window opens (`display_problem`) and `view` fails with one line (exit 2).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+import math
+import os
+import sys
+import time
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+
+from taichi_sph.errors import RenderUnavailable, UsageError
+from taichi_sph.run.rewind import SolverMemento
+
+FRAME_BUDGET_S = 1.0 / 30.0  # stepping fills the frame up to this, drawing included
+TARGET_FPS = 20.0
+CONTROLS = ("keys: space pause/resume,", "s step, r reset, c colour,", "w walls, h panel, esc quit")
+CAMERA_CONTROLS = ("left-drag: orbit,", "right-drag or +/-: zoom")
+
+
+def display_problem() -> str | None:
+    """None when an X display can be opened (what GLFW needs); otherwise why not, in a few words."""
+    display = os.environ.get("DISPLAY", "")
+    if not display:
+        return "DISPLAY is not set"
+    name = ctypes.util.find_library("X11") or "libX11.so.6"
+    try:
+        xlib = ctypes.CDLL(name)
+    except OSError:
+        return "libX11 is missing (apt-get install -y libx11-6)"
+    xlib.XOpenDisplay.restype = ctypes.c_void_p
+    xlib.XOpenDisplay.argtypes = [ctypes.c_char_p]
+    xlib.XCloseDisplay.argtypes = [ctypes.c_void_p]
+    handle = xlib.XOpenDisplay(display.encode())
+    if not handle:
+        return f"cannot open display '{display}'"
+    xlib.XCloseDisplay(handle)
+    return None
+
+
+def no_display_error(reason: str, config: str = "CONFIG") -> RenderUnavailable:
+    return RenderUnavailable(f"view needs a display and none is usable ({reason}); render offscreen with "
+                             f"`taichi-sph run {config}`, or start a virtual display: "
+                             f"`xvfb-run -a -s \"-screen 0 1280x720x24\" taichi-sph view {config}` "
+                             f"(apt-get install -y xvfb xauth)")
+
+
+def panel_rect(layout) -> tuple[float, float, float, float]:
+    """The controls panel (x, y, width, height) as fractions of the window, y down: top right of the plot."""
+    L = layout
+    pw, ph = min(320, 0.45 * L.width), min(330, 0.75 * L.plot_h)
+    return (L.plot_w - pw - 4) / L.width, (L.band_h + 4) / L.height, pw / L.width, ph / L.height
+
+
+class Rate:
+    """Events per second and simulated time per wall second over the last `span_s` seconds."""
+
+    def __init__(self, span_s: float = 1.0) -> None:
+        self.span_s = span_s
+        self.samples: deque = deque()  # (wall time, steps, simulated time)
+
+    def add(self, steps: int, t: float) -> None:
+        now = time.perf_counter()
+        self.samples.append((now, steps, t))
+        while len(self.samples) > 2 and now - self.samples[0][0] > self.span_s:
+            self.samples.popleft()
+
+    def rates(self) -> tuple[float, float, float]:
+        """(frames/s, steps/s, real-time factor)."""
+        if len(self.samples) < 2:
+            return 0.0, 0.0, 0.0
+        (w0, s0, t0), (w1, s1, t1) = self.samples[0], self.samples[-1]
+        span = max(w1 - w0, 1e-9)
+        return (len(self.samples) - 1) / span, (s1 - s0) / span, (t1 - t0) / span
+
+
+class FrameWriter:
+    """Writes PNG frames on a background thread (PNG compression takes ~15 ms a 960x540 frame here), at
+    most a few frames behind: the main thread waits when more are pending."""
+
+    def __init__(self, max_pending: int = 4) -> None:
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.pool, self.pending, self.max_pending = ThreadPoolExecutor(max_workers=1), deque(), max_pending
+
+    def write(self, path: Path, image: np.ndarray) -> None:
+        import imageio.v3 as iio
+
+        while len(self.pending) >= self.max_pending:
+            self.pending.popleft().result()
+        self.pending.append(self.pool.submit(iio.imwrite, path, image, compress_level=1))
+
+    def close(self) -> None:
+        while self.pending:
+            self.pending.popleft().result()
+        self.pool.shutdown()
+
+
+class Viewer:
+    """The live window of one scene. `frames`: stop after that many frames (tests, measurements);
+    `record_dir`: write the shown frames, the video and the final state there, as `run` does."""
+
+    def __init__(self, cfg, *, frames: int | None = None, record_dir: Path | None = None, quiet: bool = False,
+                 config_arg: str = "CONFIG") -> None:
+        from taichi_sph.render import RenderSettings
+
+        self.cfg, self.frames, self.quiet = cfg, frames, quiet
+        self.record_dir = Path(record_dir) if record_dir is not None else None
+        self.config_arg = config_arg
+        self.settings = RenderSettings.from_config(cfg.render)
+        self.colour_by = self.settings.colour_by
+        self.paused = False
+        self.status = "running"
+        self.show_panel = True
+        self.step_s = 0.0  # stepping time in the last frame
+        self.steps_last = 0
+        self.draw_s = 0.0  # drawing time of the last frame
+        self.record_s = 0.0  # time writing the last frame to the run folder (--record)
+        self.rate = Rate()
+        self._single = self._reset = False  # asked for by a key or button, done in the next frame
+        self._drag_from = None
+
+    # -- set-up ---------------------------------------------------------------------------------
+    def _new_solver(self):
+        from taichi_sph.scene.bodies import build_particles
+        from taichi_sph.solvers.registry import make_solver
+
+        solver = make_solver(self.cfg, build_particles(self.cfg))
+        solver.prepare()
+        return solver
+
+    def _open(self):
+        from taichi_sph.render import FrameLayout, scene
+
+        problem = display_problem()
+        if problem is not None:
+            raise no_display_error(problem, self.config_arg)
+        if not scene.vulkan_available():
+            raise scene.unavailable()
+        from taichi_sph.run.runtime import init_taichi
+
+        init_taichi(self.cfg.arch, self.cfg.precision)
+        self.solver = self._new_solver()
+        self.initial = SolverMemento(self.solver)  # reset rewinds to it: no second solver to compile
+        self.layout = FrameLayout.for_size(self.settings.width, self.settings.height)
+        self.window = scene.open_window(f"taichi-sph view: {self.cfg.name} ({self.cfg.solver})",
+                                        self.layout.width, self.layout.height, show=True)
+        cfg = self.cfg
+        self.drawer = scene.ParticleDrawer(self.window, self.layout, self.settings, cfg.dim, cfg.domain.lo,
+                                           cfg.domain.hi, self.solver.n, cfg.particles.dx)
+        self.band_quads = scene.OverlayQuads(self.window, self.layout)
+        self.strip_quads = scene.OverlayQuads(self.window, self.layout)
+        self.panel = panel_rect(self.layout)
+
+    # -- one frame ------------------------------------------------------------------------------
+    def _advance(self, single: bool) -> None:
+        """Step for the frame's budget (at least once), or once when `single`; stop at t_end or on NaN."""
+        solver, t_end = self.solver, self.cfg.time.t_end
+        budget = 0.0 if single else max(FRAME_BUDGET_S - self.draw_s - self.record_s, 0.0)
+        t0 = time.perf_counter()
+        steps, batch = 0, 1
+        while solver.t < t_end - 1e-12:
+            # batches of steps (WCSPH runs a batch on the device without read-backs)
+            dts = solver.advance(batch, math.inf, t_end)
+            steps += len(dts)
+            elapsed = time.perf_counter() - t0
+            if single or not dts or elapsed >= budget:
+                break
+            batch = int(max(1, min(64, (budget - elapsed) / (elapsed / steps))))  # what the rest of the budget holds
+        self.step_s, self.steps_last = time.perf_counter() - t0, steps
+        if solver.read_stats()["non_finite"] > 0:
+            self.paused, self.status = True, "unstable: NaN (r: reset)"
+        elif solver.t >= t_end - 1e-12:
+            self.paused, self.status = True, f"t_end {t_end:g} s reached (r: reset)"
+
+    def _draw_state(self) -> tuple[np.ndarray, np.ndarray, dict]:
+        """Positions, kinds and the colour field's values, in particle-id order (as snapshots hold them, so
+        that overlapping circles are drawn in the same order as offscreen), without the full host state."""
+        from taichi_sph.render import particle_values
+
+        P = self.solver.particles
+        pid = P.pid.to_numpy()
+
+        def by_id(field):
+            a = field.to_numpy()
+            out = np.empty_like(a)
+            out[pid] = a
+            return out
+
+        need = {"speed": "v", "pressure": "p", "density_error": "rho"}.get(self.colour_by)
+        arrays = {need: by_id(getattr(P, need))} if need else {}
+        values = particle_values(arrays.get("v"), arrays.get("rho"), arrays.get("p"), self.cfg.fluid.rho0)
+        return by_id(P.x), by_id(P.kind), values
+
+    def _draw(self) -> None:
+        from taichi_sph.render import particle_colours, time_label
+
+        x, kind, values = self._draw_state()
+        rgb, rng = particle_colours(kind, values, self.colour_by, self.settings.range)
+        self.drawer.draw(x, kind, rgb)
+        L = self.layout
+        label = time_label(self.solver.t)
+        self.band_quads.draw_image(lambda: L.band_image(label), 0, 0, key=label)
+        colour_by = self.colour_by
+        self.strip_quads.draw_image(lambda: L.strip_image(colour_by, rng), L.band_h, L.plot_w,
+                                    key=L.legend_key(colour_by, rng))
+
+    def readout(self) -> list[str]:
+        """The panel's text, in lines short enough for it: time, rates, a frame's cost, why below 20 frames/s."""
+        fps, sps, rtf = self.rate.rates()
+        s = self.solver
+        lines = [f"t = {s.t:.4f} s, step {s.step_count}", self.status,
+                 f"{sps:.0f} steps/s, real time x{rtf:.2g}",
+                 f"{fps:.1f} frames/s; a frame:",
+                 f"  stepping {1e3 * self.step_s:.1f} ms ({self.steps_last} steps)",
+                 f"  drawing {1e3 * self.draw_s:.1f} ms"]
+        if self.record_dir is not None:
+            lines.append(f"  writing it {1e3 * self.record_s:.1f} ms")
+        if not self.paused and 0.0 < fps < TARGET_FPS:
+            costs = {"one step takes": self.step_s / max(self.steps_last, 1),
+                     f"drawing {s.n} particles:": self.draw_s, "writing frames (--record):": self.record_s}
+            why = max(costs, key=costs.get)  # the largest cost is the reason
+            lines += [f"below {TARGET_FPS:.0f} frames/s because", f"  {why} {1e3 * costs[why]:.0f} ms"]
+        lines.append(f"colour: {self.colour_by}, walls {'on' if self.drawer.show_walls else 'off'}")
+        return lines
+
+    def _panel(self) -> None:
+        from taichi_sph.render.settings import COLOUR_FIELDS
+
+        gui = self.window.get_gui()
+        with gui.sub_window("taichi-sph", *self.panel) as g:
+            for line in self.readout():
+                g.text(line)
+            if g.button("resume" if self.paused else "pause"):
+                self._toggle_pause()
+            if g.button("single step"):
+                self._single = True
+            if g.button("reset"):
+                self._reset = True
+            for name in COLOUR_FIELDS:
+                if g.button(("> " if name == self.colour_by else "") + name):
+                    self.colour_by = name
+            self.drawer.show_walls = g.checkbox("walls", self.drawer.show_walls)
+            for line in CONTROLS:
+                g.text(line)
+            for line in CAMERA_CONTROLS if self.cfg.dim == 3 else ():
+                g.text(line)
+
+    # -- input ----------------------------------------------------------------------------------
+    def _toggle_pause(self) -> None:
+        if self.solver.t < self.cfg.time.t_end - 1e-12 and not self.status.startswith("unstable"):
+            self.paused = not self.paused
+            self.status = "paused" if self.paused else "running"
+
+    def _in_panel(self, cursor) -> bool:
+        x0, y0, w, h = self.panel
+        return self.show_panel and x0 <= cursor[0] <= x0 + w and 1.0 - y0 - h <= cursor[1] <= 1.0 - y0
+
+    def on_key(self, key: str) -> None:
+        """A key press: space, s, r, c, w, h, +/-, Escape (GGUI key names)."""
+        from taichi_sph.render.settings import COLOUR_FIELDS
+
+        if key == " ":
+            self._toggle_pause()
+        elif key == "s":
+            self._single = True
+        elif key == "r":
+            self._reset = True
+        elif key == "c":
+            self.colour_by = COLOUR_FIELDS[(COLOUR_FIELDS.index(self.colour_by) + 1) % len(COLOUR_FIELDS)]
+        elif key == "w":
+            self.drawer.show_walls = not self.drawer.show_walls
+        elif key == "h":
+            self.show_panel = not self.show_panel
+        elif key in ("=", "+", "-") and self.cfg.dim == 3:
+            self.drawer.camera.zoom(0.9 if key != "-" else 1.1)
+        elif key == "Escape":
+            self.window.running = False
+
+    def _input(self) -> None:
+        import taichi as ti
+
+        w = self.window
+        for e in w.get_events(ti.ui.PRESS):
+            self.on_key(e.key)
+        if self.cfg.dim != 3:
+            return
+        cursor = np.asarray(w.get_cursor_pos(), dtype=np.float64)
+        left, right = w.is_pressed(ti.ui.LMB), w.is_pressed(ti.ui.RMB)
+        if (left or right) and self._drag_from is None and not self._in_panel(cursor):
+            self._drag_from = cursor
+        elif not (left or right):
+            self._drag_from = None
+        if self._drag_from is not None:
+            d = cursor - self._drag_from
+            if left:
+                self.drawer.camera.orbit(-np.pi * d[0], -0.5 * np.pi * d[1])
+            else:
+                self.drawer.camera.zoom(float(np.exp(-2.0 * d[1])))
+            self._drag_from = cursor
+
+    # -- the loop -------------------------------------------------------------------------------
+    def run(self) -> int:
+        self._open()
+        from taichi_sph.render import image_from_buffer
+
+        folder = writer = None
+        frames_written: list[Path] = []
+        if self.record_dir is not None:
+            from taichi_sph.config.loader import to_dict
+            from taichi_sph.run.output import RunFolder
+
+            writer = FrameWriter()
+            folder = RunFolder(self.record_dir).prepare()
+            folder.write_config(to_dict(self.cfg))
+        shown = 0
+        wall0 = time.perf_counter()
+        step_costs: list[float] = []  # per frame, seconds
+        draw_costs: list[float] = []
+        record_costs: list[float] = []
+        try:
+            while self.window.running and (self.frames is None or shown < self.frames):
+                self._input()
+                if self._reset:
+                    self.initial.restore()  # the solver as it was before its first step
+                    self.paused, self.status, self._reset = False, "running", False
+                if not self.paused or self._single:
+                    self._advance(self._single)
+                else:
+                    self.step_s, self.steps_last = 0.0, 0
+                self._single = False
+                d0 = time.perf_counter()
+                self._draw()
+                if self.show_panel:
+                    self._panel()
+                r0 = time.perf_counter()  # with --record, GGUI draws the frame when it is read back: counted here
+                if writer is not None:
+                    path = folder.frames_dir / f"frame_{shown:05d}.png"
+                    writer.write(path, image_from_buffer(self.window.get_image_buffer_as_numpy()))
+                    frames_written.append(path)
+                self.record_s = time.perf_counter() - r0
+                self.window.show()
+                self.draw_s = time.perf_counter() - d0 - self.record_s
+                step_costs.append(self.step_s)
+                draw_costs.append(self.draw_s)
+                record_costs.append(self.record_s)
+                self.rate.add(self.solver.step_count, self.solver.t)
+                shown += 1
+        finally:
+            from taichi_sph.render import scene
+
+            scene.close_window(self.window)
+            if writer is not None:
+                writer.close()
+        wall = time.perf_counter() - wall0
+        if folder is not None:
+            self._finish_record(folder, frames_written)
+        if not self.quiet and shown:
+            # medians: the first frame also compiles kernels and shaders
+            step_ms, draw_ms, rec_ms = (1e3 * float(np.median(c)) for c in (step_costs, draw_costs, record_costs))
+            rec = f" + {rec_ms:.1f} ms writing" if folder is not None else ""
+            print(f"view: {shown} frames in {wall:.2f} s ({shown / max(wall, 1e-9):.1f} frames/s, first frame "
+                  f"{1e3 * (step_costs[0] + draw_costs[0]):.0f} ms); median frame {step_ms:.1f} ms stepping + "
+                  f"{draw_ms:.1f} ms drawing{rec} = {1e3 / max(step_ms + draw_ms + rec_ms, 1e-9):.1f} frames/s; "
+                  f"{self.solver.step_count} steps to t = {self.solver.t:.4g} s")
+        return 0
+
+    def _finish_record(self, folder, frames: list[Path]) -> None:
+        """The final state as a snapshot (the last frame shows it) and the video, as `run` writes them."""
+        st = self.solver.host_state()
+        folder.snapshot(self.solver.step_count, self.solver.t, {k: st[k] for k in ("x", "v", "rho", "p", "mass",
+                                                                                     "kind", "id")}, self.cfg.dim)
+        if frames and self.settings.video != "none":
+            from taichi_sph.render import assemble_video
+
+            assemble_video(frames, folder.path / f"video.{self.settings.video}", self.settings.fps)
+        if not self.quiet:
+            print(f"recorded {len(frames)} frames to {folder.path}", file=sys.stderr)
+
+
+def cmd_view(args) -> int:
+    from taichi_sph.config.loader import config_from_args
+
+    if args.frames is not None and args.frames < 1:
+        raise UsageError(f"--frames must be >= 1, got {args.frames}")
+    if args.out and not args.record:
+        raise UsageError("--out names the run folder of --record; add --record")
+    problem = display_problem()  # before anything slow: no display is a one-line answer at once
+    if problem is not None:
+        raise no_display_error(problem, args.config)
+    cfg = config_from_args(args)
+    record = None
+    if args.record:
+        record = Path(args.out) if args.out else Path("renders") / f"{cfg.name}-{cfg.solver}-view"
+    return Viewer(cfg, frames=args.frames, record_dir=record, quiet=args.quiet, config_arg=args.config).run()

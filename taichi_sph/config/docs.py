@@ -1,0 +1,37 @@
+"""The config reference (`taichi-sph config-doc`, docs/config_reference.md): one row per key from the schema."""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+
+from taichi_sph.config.loader import is_dataclass_type, to_dict
+from taichi_sph.config.schema import Config
+
+
+def config_reference() -> str:
+    """Markdown table of every key: default, unit, meaning and allowed values."""
+    rows = ["| key | default | unit | meaning |", "|---|---|---|---|"]
+
+    def walk(cls: type, prefix: str) -> None:
+        hints = typing.get_type_hints(cls)
+        for f in dataclasses.fields(cls):
+            key = f"{prefix}{f.name}"
+            tp = hints[f.name]
+            item = typing.get_args(tp)[0] if typing.get_origin(tp) is tuple else None
+            if is_dataclass_type(tp):
+                walk(tp, key + ".")
+                continue
+            if item is not None and is_dataclass_type(item):
+                walk(item, key + "[].")
+                continue
+            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+            doc = f.metadata.get("doc", "")
+            if f.metadata.get("choices"):
+                doc += " (one of: " + ", ".join(f"`{c}`" for c in f.metadata["choices"]) + ")"
+            dflt = "" if default is None else f"`{to_dict(default)}`"
+            rows.append(f"| `{key}` | {dflt} | {f.metadata.get('unit', '')} | {doc} |")
+
+    walk(Config, "")
+    return "\n".join(rows)
+

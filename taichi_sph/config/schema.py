@@ -1,0 +1,429 @@
+"""Configuration: YAML (+ `extends:`) -> overrides -> validated, frozen dataclasses.
+
+Every key, its default, unit and allowed values is declared once, here, in the dataclass
+fields' metadata; `taichi-sph config-doc` prints the reference that README.md carries.
+Every refusal is a ConfigError naming the file, the key and what is allowed.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+AUTO = "auto"
+
+
+def opt(default: Any = dataclasses.MISSING, doc: str = "", *, unit: str = "", choices: tuple | None = None,
+        minimum: float | None = None, positive: bool = False, factory: Any = None) -> Any:
+    """A documented config key: default, doc string, unit, allowed values and bounds."""
+    meta = dict(doc=doc, unit=unit, choices=choices, minimum=minimum, positive=positive)
+    if factory is not None:
+        return field(default_factory=factory, metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+# ----------------------------------------------------------------------------- schema
+@dataclass(frozen=True)
+class Domain:
+    lo: tuple[float, ...] = opt((0.0, 0.0), "lower corner of the simulation domain; particles leaving it make the run unstable", unit="m")
+    hi: tuple[float, ...] = opt((1.0, 1.0), "upper corner of the simulation domain", unit="m")
+    periodic: tuple[bool, ...] | None = opt(None, "per-axis periodicity (list of dim booleans); default none periodic")
+
+
+@dataclass(frozen=True)
+class Particles:
+    dx: float = opt(0.02, "initial particle spacing", unit="m", positive=True)
+    hdx: float = opt(1.3, "smoothing length over spacing, h = hdx * dx", positive=True)
+    kernel: str = opt("wendland_c2", "smoothing kernel", choices=("cubic_spline", "wendland_c2", "wendland_c4",
+                                                                  "quintic_spline", "gaussian", "poly6_spiky"))
+    max_neighbors: int | str = opt(AUTO, "capacity of each particle's neighbour list ('auto': 2.5x the lattice count)")
+    skin: float | str = opt(AUTO, "Verlet skin as a fraction of the support radius: lists cover support x (1 + skin) and "
+                                  "are rebuilt only when a particle may have moved skin/2; 'auto' = 0.15 for WCSPH, "
+                                  "0 (rebuild every step) for ISPH")
+    neighbor_access: str = opt("lists", "how pair loops reach neighbours: 'lists' = a stored Verlet list per particle "
+                                        "(max_neighbors i32 each); 'cells' = a walk over the 3^dim cells around the "
+                                        "particle in the cell-sorted arrays, no lists stored (WCSPH only; same sums "
+                                        "in the same order, more candidates tested)", choices=("lists", "cells"))
+
+
+@dataclass(frozen=True)
+class Fluid:
+    rho0: float = opt(1000.0, "rest density", unit="kg/m^3", positive=True)
+    c0: float | str = opt(AUTO, "artificial sound speed (WCSPH); 'auto' = c0_factor x reference_speed", unit="m/s")
+    c0_factor: float = opt(10.0, "c0 / reference_speed when c0 is 'auto' (10 keeps density errors near 1%)", positive=True)
+    reference_speed: float | None = opt(None, "the largest flow speed the scene expects, e.g. sqrt(2 g H) for a dam break", unit="m/s", positive=True)
+    gamma: float = opt(7.0, "Tait exponent, p = B((rho/rho0)^gamma - 1), B = c0^2 rho0 / gamma", positive=True)
+    nu: float = opt(0.0, "kinematic viscosity (laminar, Morris et al. 1997 form); 0 compiles it out", unit="m^2/s", minimum=0.0)
+    background_pressure: float = opt(0.0, "constant added to the equation of state (p_b); keeps pressure positive in closed "
+                                          "flows; for ISPH the ambient pressure at a free surface and the mean pressure "
+                                          "in closed boxes", unit="Pa", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class Body:
+    type: str = opt("fluid_block", "what the body is", choices=("fluid_block", "fluid_sphere", "wall_box", "wall_block"))
+    lo: tuple[float, ...] | None = opt(None, "box lower corner (fluid_block, wall_block; inner lower corner of wall_box)", unit="m")
+    hi: tuple[float, ...] | None = opt(None, "box upper corner (inner upper corner of wall_box)", unit="m")
+    center: tuple[float, ...] | None = opt(None, "fluid_sphere centre (a circle in 2D, a segment in 1D)", unit="m")
+    radius: float | None = opt(None, "fluid_sphere radius", unit="m", positive=True)
+    layers: int = opt(3, "wall_box: number of particle layers outside the inner box", minimum=1)
+    open_top: bool = opt(True, "wall_box: no wall on the top face (highest axis)")
+    velocity: tuple[Any, ...] | None = opt(None, "initial velocity (fluid) or prescribed velocity (wall): dim numbers, or dim "
+                                           "expressions of x, y, z, t-free (numpy functions sin, cos, exp, sqrt, pi, ...)", unit="m/s")
+    hydrostatic: bool = opt(False, "fluid_block/fluid_sphere: start with hydrostatic density for the given gravity (free surface at the body top)")
+    pressure: Any = opt(None, "fluid: initial pressure, a number or an expression of x, y, z (as velocity, plus "
+                                             "square_poisson(x, y, L): lap phi = 1 in the square |x|, |y| < L/2, 0 on its edges); "
+                                             "WCSPH starts from the Tait density of it (no start-up pressure wave); None = 0 "
+                                             "(or hydrostatic)", unit="Pa")
+
+
+@dataclass(frozen=True)
+class CentralForce:
+    omega: float = opt(0.0, "a body force -omega^2 (x - center) toward a point, as a harmonic potential (holds a drop "
+                            "together without walls, Monaghan & Rafiee 2013); 0 compiles it out", unit="1/s", minimum=0.0)
+    center: tuple[float, ...] | None = opt(None, "the point the central force pulls toward; None = the domain centre", unit="m")
+
+
+@dataclass(frozen=True)
+class Reflecting:
+    enabled: bool = opt(False, "reflect particles at the non-periodic domain faces (simple elastic floor/walls)")
+    restitution: float = opt(1.0, "normal velocity kept after a reflection, 0..1", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class DensityDiffusion:
+    model: str = opt("none", "delta-SPH density diffusion: Molteni & Colagrossi 2009, or with the hydrostatic "
+                              "part removed (Fourtakas et al. 2019)", choices=("none", "molteni", "fourtakas"))
+    delta: float = opt(0.1, "diffusion coefficient delta", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class ArtificialViscosity:
+    alpha: float = opt(0.0, "Monaghan (1992) linear coefficient (used by ISPH's predictor too); 0 (with beta 0) "
+                            "compiles it out", minimum=0.0)
+    beta: float = opt(0.0, "Monaghan quadratic coefficient", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class TensileCorrection:
+    enabled: bool = opt(False, "Monaghan (2000) artificial pressure against the tensile instability")
+    epsilon: float = opt(0.2, "strength: R = epsilon |p| / rho^2 for negative pressures", minimum=0.0)
+    epsilon_positive: float = opt(0.0, "R = this x p / rho^2 for positive pressures (Monaghan 2000 and PySPH / DualSPHysics "
+                                       "take 0.01). Off: it does not separate the pairs the dam break forms at its walls "
+                                       "(dx a/40 to t = 0.7 s: closest 0.016 dx either way) and let 1 particle through the "
+                                       "floor where 0 (with the wall mirror) let none", minimum=0.0)
+    n: float = opt(4.0, "exponent of f = W(r)/W(dx)", positive=True)
+
+
+@dataclass(frozen=True)
+class Shifting:
+    enabled: bool | None = opt(None, "particle shifting (Lind et al. 2012 form, free-surface aware); None = on for ISPH, off for WCSPH")
+    model: str = opt("skillen", "the speed in the diffusion coefficient D = A h U dt: the particle's own |v_a| (Skillen et al. "
+                                "2013; vanishes at stagnation points, where a stretched lattice then stays as it is) or the "
+                                "largest fluid speed of the step (Sun et al. 2017, delta+-SPH: CFL Ma (2h)^2 = 4 h U dt)",
+                     choices=("skillen", "sun"))
+    coefficient: float = opt(2.0, "A in the shift dr_a = -D grad C_a with D = A h U dt (U: see shifting.model)", minimum=0.0)
+    max_shift: float = opt(0.1, "cap on |dr_a| per step, as a fraction of dx", positive=True)
+
+
+@dataclass(frozen=True)
+class Walls:
+    slip: str = opt("no_slip", "wall condition for viscous terms (Adami et al. 2012 velocity extrapolation)", choices=("no_slip", "free_slip"))
+
+
+@dataclass(frozen=True)
+class WCSPH:
+    density: str = opt("continuity", "density evolution", choices=("continuity", "summation"))
+    integrator: str = opt("symplectic_euler", "time integrator", choices=("symplectic_euler", "leapfrog"))
+    density_diffusion: DensityDiffusion = opt(factory=DensityDiffusion, doc="delta-SPH term")
+    artificial_viscosity: ArtificialViscosity = opt(factory=ArtificialViscosity, doc="Monaghan artificial viscosity")
+    tensile_correction: TensileCorrection = opt(factory=TensileCorrection, doc="Monaghan tensile correction")
+    clamp_negative_pressure: bool = opt(False, "clamp p >= 0 (free-surface flows with summation density)")
+    tensile_instability_control: bool = opt(False, "delta+-SPH's tensile instability control (Sun et al. 2017): a particle "
+                                                   "in tension (p_a < 0) away from the free surface takes the pressure "
+                                                   "gradient in the difference form (p_b - p_a), which has no pairwise "
+                                                   "attraction; needs `shifting.model: sun` (its free-surface region)")
+    wall_clearance: float | None = opt(0.25, "kinematic wall condition (as ISPH's): the speed toward a wall face is cut so "
+                                             "that no fluid particle comes closer than this to it (fluid starts dx/2 away). "
+                                             "Without it the thin fast layer after a dam-break impact sinks up to 0.32 dx past "
+                                             "the floor face (1-3 particles at a time, t = 0.44-0.94 s); None = off",
+                                       unit="dx", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class Multigrid:
+    smoother_omega: float = opt(0.9, "weighted-Jacobi factor of the V-cycle's smoothing sweeps (every level)", positive=True)
+    coarse_scale: float = opt(1.8, "scale s of the coarse-grid correction x += s P y (piecewise-constant aggregates "
+                                   "make each Galerkin level ~2x too stiff; any s > 0 keeps CG valid). 2D dam break, "
+                                   "100k particles to t = 0.15 s: s 1.6 / 1.8 / 2 / 2.3: 13.9 / 13.8 / 15.9 / 20.7 "
+                                   "iterations a step", positive=True)
+    cell_sweeps: int = opt(3, "weighted-Jacobi sweeps before and after the coarse correction on each cell level (one on "
+                              "the particles); 1 / 2 / 3 sweeps: 22 / 18 / 16 iterations at 650k particles, 14 / 12 / 12 at 43k", minimum=1)
+    coarsest_sweeps: int = opt(8, "symmetric Gauss-Seidel sweeps on the coarsest level", minimum=1)
+
+
+@dataclass(frozen=True)
+class PPE:
+    solver: str = opt(AUTO, "pressure Poisson solver, matrix-free: CG preconditioned by a multigrid V-cycle on the neighbour "
+                            "cells (mgcg), by Jacobi (cg), weighted Jacobi (jacobi), or auto (mgcg from "
+                            "isph.ppe.mgcg_from fluid particles, cg below)", choices=("auto", "mgcg", "cg", "jacobi"))
+    mgcg_from: int = opt(1000, "fluid-particle count from which solver 'auto' takes mgcg (measured on the 2D dam break: "
+                               "mgcg 2.2x faster per step at 1.7k fluid particles, 2.8x at 25k)", minimum=0)
+    multigrid: Multigrid = opt(factory=Multigrid, doc="mgcg's V-cycle")
+
+    def solver_for(self, n_fluid: int) -> str:
+        """`solver`, with 'auto' resolved by the scene size: mgcg from `mgcg_from` fluid particles, else cg."""
+        if self.solver != AUTO:
+            return self.solver
+        return "mgcg" if n_fluid >= self.mgcg_from else "cg"
+    tolerance: float = opt(1e-4, "relative residual ||b - A p|| / ||b|| to stop at", positive=True)
+    max_iterations: int = opt(1000, "iteration cap; reaching it is a warning in the summary", minimum=1)
+    omega: float = opt(0.6, "weighted-Jacobi relaxation factor", positive=True)
+    check_every: int = opt(4, "PPE iterations launched between two host read-backs of the solve state; the stopping "
+                              "test runs on the device after every iteration (later iterations are empty), so the "
+                              "result does not depend on it: it trades read-backs (a device sync each) against "
+                              "empty launches after convergence", minimum=1)
+
+
+@dataclass(frozen=True)
+class ISPH:
+    source: str = opt("blend", "PPE source: divergence of the intermediate velocity (Cummins & Rudman 1999), density "
+                                "invariance (Shao & Lo 2003), or blend", choices=("divergence", "density_invariance", "blend"))
+    blend: float = opt(0.1, "weight of the density-invariance source in 'blend'", minimum=0.0)
+    ppe: PPE = opt(factory=PPE, doc="PPE solver settings")
+    free_surface_threshold: float = opt(0.8, "a particle is free-surface when its kernel sum / lattice kernel sum is below this", positive=True)
+    one_sided_ratio: float | None = opt(None, "a surface candidate (kernel sum below 0.97 of the lattice's) is also free-surface when "
+                                             "its own pressure's push on it, grad C . M^-T grad C, exceeds this fraction of its "
+                                             "neighbours' share of the projection's diagonal (a one-sided support: its PPE row "
+                                             "cannot hold it; physics/free_surface.py); None = off", positive=True)
+    step_force: str = opt("total", "the acceleration in the step's force limit CFL sqrt(h / |a|): 'total' (predictor and "
+                                   "pressure) or 'explicit' (body force and viscous terms: the pressure is the projection's "
+                                   "response to the step, ~ 1/dt^2 through the density source, and a limit on it feeds back: "
+                                   "a shorter step, a larger correction, a shorter step)", choices=("total", "explicit"))
+    compression_only: bool = opt(False, "density-invariance source corrects compression only (rho floored at rho0): for free-surface "
+                                        "flows, where a kernel-sum deficit is not expansion; off in closed boxes (one-sided source drifts)")
+    artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor; None = wcsph.artificial_viscosity.alpha "
+                                                         "(ISPH steps ~10x longer, so the same alpha damps differently)", minimum=0.0)
+    cfl: float | None = opt(None, "Courant number of ISPH's adaptive step; None = time.cfl. ISPH's step follows the flow "
+                                  "speed, WCSPH's the sound speed, so the same number means steps ~10x apart", positive=True)
+    hdx: float | None = opt(None, "h / dx for ISPH; None = particles.hdx. ISPH's summation density (its density-invariance "
+                                  "source, its density error) spreads with the arrangement's disorder the more the smaller h is: "
+                                  "WCSPH's continuity density does not see it", positive=True)
+    shifting_coefficient: float | None = opt(None, "A of the particle shift in ISPH; None = shifting.coefficient (ISPH's corrected "
+                                                   "pressure gradient has no pairwise repulsion: shifting is all that re-orders its "
+                                                   "particles, and it may need a larger A than WCSPH)", minimum=0.0)
+    wall_clearance: float | None = opt(0.25, "kinematic wall condition: the speed toward a wall face is cut so that no fluid particle "
+                                             "comes closer than this to it (fluid starts dx/2 away); holds free-surface films, "
+                                             "which have no PPE pressure; None = off", unit="dx", minimum=0.0)
+
+
+@dataclass(frozen=True)
+class Time:
+    t_end: float = opt(1.0, "simulated end time", unit="s", positive=True)
+    dt: float | str = opt(AUTO, "time step: 'auto' (adaptive) or a fixed value", unit="s")
+    cfl: float = opt(0.25, "Courant number for the adaptive step", positive=True)
+    dt_max: float | None = opt(None, "upper bound of the adaptive step (ISPH flows starting at rest)", unit="s", positive=True)
+
+
+@dataclass(frozen=True)
+class Guards:
+    max_density_error: float = opt(0.2, "|rho - rho0| / rho0 beyond which the run is declared unstable", positive=True)
+    check_every: int = opt(20, "steps between stability checks", minimum=1)
+
+
+@dataclass(frozen=True)
+class Output:
+    every: float = opt(0.02, "simulated time between output rows (timeseries, probes, metrics)", unit="s", positive=True)
+    snapshot_every: float | None = opt(None, "simulated time between NPZ/VTU snapshots; None = at the end only", unit="s", positive=True)
+    checkpoint_every: float | str | None = opt(AUTO, "simulated time between checkpoints (full solver state, written "
+                                                     "atomically; `taichi-sph resume` continues from the last one); "
+                                                     "'auto' = t_end / 10 (a killed run loses at most a tenth); None = "
+                                                     "only at the end or on Ctrl-C", unit="s")
+
+
+@dataclass(frozen=True)
+class Render:
+    enabled: bool = opt(True, "write frames and a video (also off with --no-render)")
+    every: float = opt(0.02, "simulated time between frames", unit="s", positive=True)
+    width: int = opt(960, "frame width", unit="px", minimum=16)
+    height: int = opt(540, "frame height", unit="px", minimum=16)
+    colour_by: str = opt("speed", "field the particles are coloured by", choices=("speed", "pressure", "density_error", "kind"))
+    range: tuple[float, ...] | None = opt(None, "fixed colour range [lo, hi]; None = automatic")
+    show_walls: bool = opt(True, "draw wall particles (faint grey)")
+    camera_position: tuple[float, ...] | None = opt(None, "3D camera position; None = framing the domain", unit="m")
+    camera_lookat: tuple[float, ...] | None = opt(None, "3D camera target; None = domain centre", unit="m")
+    video: str = opt("mp4", "video assembled from the frames", choices=("mp4", "gif", "none"))
+    fps: int = opt(30, "video frame rate", minimum=1)
+    particle_scale: float = opt(1.0, "drawn radius = 0.5 dx x this", positive=True)
+
+
+@dataclass(frozen=True)
+class Probe:
+    name: str = opt("probe", "column name in timeseries.csv")
+    quantity: str = opt("pressure", "what the probe measures (kernel-weighted over fluid)", choices=("pressure", "velocity_x", "density"))
+    position: tuple[float, ...] = opt((0.0, 0.0), "probe location", unit="m")
+
+
+@dataclass(frozen=True)
+class Metric:
+    type: str = opt("hydrostatic", "reference metric written to summary.json errors",
+                    choices=("hydrostatic", "surge_front", "taylor_green", "poiseuille", "cavity", "column_fall",
+                             "probe_pressure", "drop_ellipse", "rotating_square"))
+    depth: float | None = opt(None, "hydrostatic: fluid depth H", unit="m", positive=True)
+    floor: float = opt(0.0, "hydrostatic / surge_front: floor height", unit="m")
+    column_width: float | None = opt(None, "surge_front: column width a", unit="m", positive=True)
+    origin: float = opt(0.0, "surge_front: x of the wall the column leans on", unit="m")
+    t_max: float = opt(3.0, "surge_front: last dimensionless time T compared")
+    lid_velocity: float = opt(1.0, "cavity: lid speed", unit="m/s")
+    strain_rate: float = opt(0.0, "drop_ellipse: A0 of the first fluid_sphere's initial velocity A0 (x - c, c - y) about its "
+                                  "centre c", unit="1/s")
+    angular_velocity: float = opt(1.0, "rotating_square: omega of the first fluid_block's initial rigid rotation u = omega "
+                                       "(y - y_c, x_c - x) about its centre (clockwise for omega > 0)", unit="1/s")
+    width: float = opt(1.0, "poiseuille / cavity: channel or cavity width", unit="m")
+    probe: str = opt("", "probe_pressure: name of the probe (see probes) compared with the reference")
+    reference: str = opt("dambreak_buchner2002_pressure_probe_pysph",
+                         "probe_pressure: bundled reference table with columns t_star = t sqrt(g/H), p_star = p/(rho0 g H)")
+
+
+@dataclass(frozen=True)
+class Config:
+    name: str = opt("", "scene name (default: the file's stem)")
+    description: str = opt("", "one line shown by `taichi-sph list`")
+    dim: int = opt(2, "spatial dimension", choices=(1, 2, 3))
+    solver: str = opt("wcsph", "time-stepping scheme", choices=("wcsph", "isph"))
+    precision: str = opt("f32", "floating-point precision of all fields", choices=("f32", "f64"))
+    arch: str = opt("cpu", "Taichi backend", choices=("cpu", "cuda", "vulkan", "gpu", "auto"))
+    seed: int = opt(0, "random seed (initial jitter, random velocity expressions)")
+    gravity: tuple[float, ...] | None = opt(None, "body acceleration (dim numbers); None or zeros compiles it out", unit="m/s^2")
+    gravity_ramp: float = opt(0.0, "time over which gravity rises smoothly from 0 to its value, "
+                                   "g (1 - cos(pi t / t_ramp)) / 2 (Adami et al. 2012 damping); 0 = off", unit="s", minimum=0.0)
+    central_force: CentralForce = opt(factory=CentralForce, doc="harmonic body force toward a point")
+    domain: Domain = opt(factory=Domain, doc="simulation box")
+    particles: Particles = opt(factory=Particles, doc="discretisation")
+    fluid: Fluid = opt(factory=Fluid, doc="material")
+    bodies: tuple[Body, ...] = opt((), "fluid and wall bodies (list)")
+    reflecting: Reflecting = opt(factory=Reflecting, doc="reflecting domain faces")
+    walls: Walls = opt(factory=Walls, doc="wall boundary condition")
+    wcsph: WCSPH = opt(factory=WCSPH, doc="WCSPH options")
+    isph: ISPH = opt(factory=ISPH, doc="ISPH options")
+    shifting: Shifting = opt(factory=Shifting, doc="particle shifting")
+    time: Time = opt(factory=Time, doc="time stepping")
+    guards: Guards = opt(factory=Guards, doc="stability guards")
+    output: Output = opt(factory=Output, doc="output cadence")
+    render: Render = opt(factory=Render, doc="offscreen rendering")
+    probes: tuple[Probe, ...] = opt((), "point probes (list)")
+    metrics: tuple[Metric, ...] = opt((), "reference metrics (list)")
+
+    # -- derived quantities ------------------------------------------------------------
+    @property
+    def h(self) -> float:
+        """Smoothing length h = hdx * dx."""
+        return self.hdx * self.particles.dx
+
+    def _isph_override(self, name: str) -> bool:
+        """Whether this run takes `isph.<name>` (an ISPH run with it set) rather than the shared key."""
+        return self.solver == "isph" and getattr(self.isph, name) is not None
+
+    def for_solver(self, name: str, shared):
+        """`isph.<name>` in an ISPH run when it is set, else the `shared` value."""
+        return getattr(self.isph, name) if self._isph_override(name) else shared
+
+    def solver_key(self, name: str, shared_key: str) -> str:
+        """The key `for_solver(name, ...)` reads for this run, for messages: 'isph.<name>' or `shared_key`."""
+        return f"isph.{name}" if self._isph_override(name) else shared_key
+
+    @property
+    def cfl(self) -> float:
+        """Courant number of the adaptive step for this run's solver (isph.cfl or time.cfl)."""
+        return self.for_solver("cfl", self.time.cfl)
+
+    @property
+    def hdx(self) -> float:
+        """h / dx for this run's solver (isph.hdx or particles.hdx)."""
+        return self.for_solver("hdx", self.particles.hdx)
+
+    @property
+    def central_force_center(self) -> tuple[float, ...]:
+        """The point of the central force: `central_force.center`, or the domain centre."""
+        c = self.central_force.center
+        if c is None:
+            return tuple(0.5 * (lo + hi) for lo, hi in zip(self.domain.lo, self.domain.hi))
+        return c
+
+    @property
+    def periodic(self) -> tuple[bool, ...]:
+        return self.domain.periodic if self.domain.periodic is not None else (False,) * self.dim
+
+    @property
+    def gravity_vector(self) -> tuple[float, ...]:
+        return self.gravity if self.gravity is not None else (0.0,) * self.dim
+
+    @property
+    def has_gravity(self) -> bool:
+        return any(g != 0.0 for g in self.gravity_vector)
+
+    @property
+    def sound_speed(self) -> float:
+        """c0: the given value, or c0_factor x reference_speed."""
+        if self.fluid.c0 != AUTO:
+            return float(self.fluid.c0)
+        return self.fluid.c0_factor * self.expected_speed
+
+    @property
+    def expected_speed(self) -> float:
+        """The scene's declared reference speed, else sqrt(2 |g| H_domain), else 1 m/s."""
+        if self.fluid.reference_speed is not None:
+            return self.fluid.reference_speed
+        g = math.sqrt(sum(x * x for x in self.gravity_vector))
+        if g > 0:
+            height = self.domain.hi[-1] - self.domain.lo[-1]
+            return math.sqrt(2.0 * g * height)
+        return 1.0
+
+    @property
+    def skin_fraction(self) -> float:
+        """Verlet skin / support radius ('auto': 0.15 for WCSPH, 0 for ISPH whose steps move particles ~h/4)."""
+        if self.particles.skin == AUTO:
+            return 0.15 if self.solver == "wcsph" else 0.0
+        return float(self.particles.skin)
+
+    @property
+    def artificial_viscosity(self) -> tuple[float, float]:
+        """(alpha, beta) of the Monaghan viscosity for this run's solver."""
+        av = self.wcsph.artificial_viscosity
+        return self.for_solver("artificial_viscosity_alpha", av.alpha), av.beta
+
+    @property
+    def shifting_coefficient(self) -> float:
+        """A of the particle shift for this run's solver (isph.shifting_coefficient or shifting.coefficient)."""
+        return self.for_solver("shifting_coefficient", self.shifting.coefficient)
+
+    @property
+    def checkpoint_interval(self) -> float | None:
+        """Simulated time between checkpoints: `output.checkpoint_every`, 'auto' = t_end / 10, None = off."""
+        every = self.output.checkpoint_every
+        if every == AUTO:
+            return self.time.t_end / 10.0
+        return None if every is None else float(every)
+
+    @property
+    def shifting_enabled(self) -> bool:
+        if self.shifting.enabled is None:
+            return self.solver == "isph"
+        return self.shifting.enabled
+
+
+# ----------------------------------------------------------------------------- generic loader
+
+
+# ----------------------------------------------------------------------------- YAML, extends, overrides
+
+
+# ----------------------------------------------------------------------------- cross-field validation
+
+
+# ----------------------------------------------------------------------------- resolved form and docs
+
+

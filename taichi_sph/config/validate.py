@@ -1,0 +1,148 @@
+"""Cross-field config checks: vector lengths, geometry inside the domain, what each solver needs."""
+
+from __future__ import annotations
+
+from taichi_sph.config.schema import AUTO, Body, Config
+from taichi_sph.errors import ConfigError
+
+
+def _check_vec(value: tuple | None, dim: int, key: str, source: str) -> None:
+    if value is not None and len(value) != dim:
+        raise ConfigError(f"expected {dim} values for dim = {dim}, got {len(value)}", source=source, key=key)
+
+
+def validate(cfg: Config, source: str) -> None:
+    """Checks that need more than one key: vector lengths, geometry inside the domain, solver needs."""
+    d = cfg.dim
+    _check_vec(cfg.domain.lo, d, "domain.lo", source)
+    _check_vec(cfg.domain.hi, d, "domain.hi", source)
+    _check_vec(cfg.domain.periodic, d, "domain.periodic", source)
+    _check_vec(cfg.gravity, d, "gravity", source)
+    _check_vec(cfg.central_force.center, d, "central_force.center", source)
+    for a in range(d):
+        if not cfg.domain.hi[a] > cfg.domain.lo[a]:
+            raise ConfigError("domain.hi must exceed domain.lo on every axis", source=source, key="domain.hi")
+    if not cfg.bodies:
+        raise ConfigError("a scene needs at least one fluid body", source=source, key="bodies")
+    if not any(b.type.startswith("fluid") for b in cfg.bodies):
+        raise ConfigError("a scene needs at least one fluid body (fluid_block or fluid_sphere)", source=source, key="bodies")
+    eps = 1e-9 * max(cfg.domain.hi[a] - cfg.domain.lo[a] for a in range(d))
+    n_fluid_bodies = 0
+    for i, b in enumerate(cfg.bodies):
+        key = f"bodies[{i}]"
+        if b.type in ("fluid_block", "wall_block", "wall_box"):
+            if b.lo is None or b.hi is None:
+                raise ConfigError(f"a {b.type} needs 'lo' and 'hi'", source=source, key=key)
+            _check_vec(b.lo, d, f"{key}.lo", source)
+            _check_vec(b.hi, d, f"{key}.hi", source)
+            if any(b.hi[a] <= b.lo[a] for a in range(d)):
+                raise ConfigError("'hi' must exceed 'lo' on every axis", source=source, key=f"{key}.hi")
+        if b.type == "fluid_sphere":
+            if b.center is None or b.radius is None:
+                raise ConfigError("a fluid_sphere needs 'center' and 'radius'", source=source, key=key)
+            _check_vec(b.center, d, f"{key}.center", source)
+        if b.velocity is not None:
+            _check_vec(b.velocity, d, f"{key}.velocity", source)
+            for j, comp in enumerate(b.velocity):
+                if isinstance(comp, bool) or not isinstance(comp, (int, float, str)):
+                    raise ConfigError(f"expected a number or an expression string, got {comp!r}", source=source,
+                                      key=f"{key}.velocity[{j}]")
+            _check_velocity_expressions(b, d, key, source)
+        if b.pressure is not None:
+            if isinstance(b.pressure, bool) or not isinstance(b.pressure, (int, float, str)):
+                raise ConfigError(f"expected a number or an expression string, got {b.pressure!r}", source=source,
+                                  key=f"{key}.pressure")
+            if isinstance(b.pressure, str):
+                _check_expression(b.pressure, d, f"{key}.pressure", source)
+        if b.type == "wall_box":
+            thick = b.layers * cfg.particles.dx
+            outer_lo = [b.lo[a] - thick for a in range(d)]
+            outer_hi = [b.hi[a] + (0.0 if (b.open_top and a == d - 1) else thick) for a in range(d)]
+            if any(outer_lo[a] < cfg.domain.lo[a] - eps or outer_hi[a] > cfg.domain.hi[a] + eps for a in range(d)):
+                raise ConfigError(f"wall_box with its {b.layers} layers spans [{_fmt(outer_lo)}]..[{_fmt(outer_hi)}], "
+                                  f"outside the domain [{_fmt(cfg.domain.lo)}]..[{_fmt(cfg.domain.hi)}]; enlarge the domain",
+                                  source=source, key=key)
+        if b.type.startswith("fluid"):
+            n_fluid_bodies += 1
+            lo, hi = _body_bounds(b)
+            if any(lo[a] < cfg.domain.lo[a] - eps or hi[a] > cfg.domain.hi[a] + eps for a in range(d)):
+                raise ConfigError(f"fluid body [{_fmt(lo)}]..[{_fmt(hi)}] lies outside the domain "
+                                  f"[{_fmt(cfg.domain.lo)}]..[{_fmt(cfg.domain.hi)}]", source=source, key=key)
+    if n_fluid_bodies == 0:
+        raise ConfigError("a scene needs at least one fluid body (fluid_block or fluid_sphere)", source=source, key="bodies")
+    for name, vec in (("render.range", cfg.render.range),):
+        if vec is not None and (len(vec) != 2 or vec[1] <= vec[0]):
+            raise ConfigError("expected [lo, hi] with hi > lo", source=source, key=name)
+    for key, vec in (("render.camera_position", cfg.render.camera_position), ("render.camera_lookat", cfg.render.camera_lookat)):
+        if vec is not None and len(vec) != 3:
+            raise ConfigError("expected 3 values", source=source, key=key)
+    for i, p in enumerate(cfg.probes):
+        _check_vec(p.position, d, f"probes[{i}].position", source)
+    for i, m in enumerate(cfg.metrics):
+        needed = {"hydrostatic": "depth", "surge_front": "column_width", "probe_pressure": "depth"}.get(m.type)
+        if needed and getattr(m, needed) is None:
+            raise ConfigError(f"a {m.type} metric needs '{needed}'", source=source, key=f"metrics[{i}].{needed}")
+        if m.type == "probe_pressure" and m.probe not in [p.name for p in cfg.probes]:
+            raise ConfigError(f"probe '{m.probe}' is not among the probes: {', '.join(p.name for p in cfg.probes) or 'none'}",
+                              source=source, key=f"metrics[{i}].probe")
+    if cfg.fluid.c0 != AUTO and (isinstance(cfg.fluid.c0, str) or cfg.fluid.c0 <= 0):
+        raise ConfigError(f"must be > 0 or 'auto', got {cfg.fluid.c0!r}", source=source, key="fluid.c0")
+    if cfg.time.dt != AUTO and (isinstance(cfg.time.dt, str) or cfg.time.dt <= 0):
+        raise ConfigError(f"must be > 0 or 'auto', got {cfg.time.dt!r}", source=source, key="time.dt")
+    ce = cfg.output.checkpoint_every
+    if ce is not None and ce != AUTO and (isinstance(ce, str) or ce <= 0):
+        raise ConfigError(f"must be > 0, 'auto' or null, got {ce!r}", source=source, key="output.checkpoint_every")
+    sk = cfg.particles.skin
+    if sk != AUTO and (isinstance(sk, str) or not 0.0 <= sk <= 1.0):
+        raise ConfigError(f"must be 'auto' or a fraction in [0, 1], got {sk!r}", source=source, key="particles.skin")
+    if cfg.wcsph.tensile_instability_control and cfg.solver == "wcsph" and not (cfg.shifting_enabled and cfg.shifting.model == "sun"):
+        raise ConfigError("the tensile instability control tells the free-surface region by the particle shifting's free-surface "
+                          "flags: set `shifting.enabled: true` and `shifting.model: sun`, or switch it off",
+                          source=source, key="wcsph.tensile_instability_control")
+    if cfg.particles.neighbor_access == "cells" and cfg.solver != "wcsph":
+        raise ConfigError("'cells' is for WCSPH only: ISPH assembles its pressure equation from the stored lists; "
+                          "use 'lists'", source=source, key="particles.neighbor_access")
+    mn = cfg.particles.max_neighbors
+    if mn != AUTO and (isinstance(mn, str) or mn < 1):
+        raise ConfigError(f"must be a positive integer or 'auto', got {mn!r}", source=source, key="particles.max_neighbors")
+    for a, per in enumerate(cfg.periodic):
+        if per:
+            length = cfg.domain.hi[a] - cfg.domain.lo[a]
+            support = 3.0 * cfg.h
+            if length < support:
+                raise ConfigError(f"periodic length {length:g} on axis {a} is shorter than 3 smoothing lengths; "
+                                  "use a smaller particles.dx", source=source, key="domain.periodic")
+
+
+def _check_velocity_expressions(b: Body, dim: int, key: str, source: str) -> None:
+    """Refuse unsafe or broken velocity expressions now (not after Taichi starts): evaluate each at one point."""
+    for j, comp in enumerate(b.velocity):
+        if isinstance(comp, str):
+            _check_expression(comp, dim, f"{key}.velocity[{j}]", source)
+
+
+def _check_expression(expr: str, dim: int, key: str, source: str) -> None:
+    """Evaluate an expression of x, y, z at one point; a failure is the user's, refused as a ConfigError."""
+    import numpy as np
+
+    from taichi_sph.config.expressions import evaluate_expression
+    coords = {name: np.zeros(1) for name in "xyz"[:dim]}
+    try:
+        with np.errstate(all="ignore"):
+            evaluate_expression(expr, coords, "", np.random.default_rng(0))
+    except ConfigError as e:
+        raise ConfigError(str(e), source=source, key=key) from None
+    except Exception as e:  # noqa: BLE001 (a whitelisted expression failing is the user's to fix)
+        raise ConfigError(f"cannot evaluate expression '{expr}': {type(e).__name__}: {e}", source=source,
+                          key=key) from None
+
+
+def _body_bounds(b: Body) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    if b.type == "fluid_sphere":
+        return tuple(c - b.radius for c in b.center), tuple(c + b.radius for c in b.center)
+    return b.lo, b.hi
+
+
+def _fmt(v: tuple[float, ...]) -> str:
+    return ", ".join(f"{x:g}" for x in v)
+

@@ -1,0 +1,230 @@
+"""A-priori checks printed before a run and stored in summary.json `warnings`.
+
+Each check judges one thing that can be known before the first step. A check is `severe` when the
+set-up cannot give a meaningful result: `taichi-sph run` refuses it (exit 2, one line; `--force` runs
+anyway) and `taichi-sph stability` reports it as the reason it refused the case. The rest are warnings
+(merely inaccurate). Thresholds:
+
+- `mach`          WCSPH: Ma = U / c0 (expected speed over sound speed); density errors ~ Ma^2.
+                  Warning above 0.1 (errors > 1%); severe at >= 1: the fluid is softer than its own flow.
+- `cfl_number`    the adaptive step's Courant number `time.cfl` (ISPH: `isph.cfl` when set) on h. Warning
+                  above 0.4 (the usual 0.25 is exceeded: noisy pressure); severe above 1: a signal crosses
+                  more than h per step, outside the CFL condition, where an explicit update has no stability
+                  guarantee.
+- `cfl_dt`, `force_dt`, `viscous_dt`   a fixed `time.dt` against the limits at Courant number 0.25
+                  (h / (c0 + U), sqrt(h / |g|)) and 0.125 h^2 / nu. Warning above them; severe above
+                  4x (Courant number 1 on h, as for `cfl_number`; 2x the viscous limit: the explicit
+                  diffusion update's own bound 0.25 h^2 / nu).
+- `support`       neighbours per kernel support on the initial lattice. Warning below 4 / 12 / 30 (1D /
+                  2D / 3D: the Wendland C2 kernel sum of a full lattice is then > 1.5% off in 2D);
+                  severe below half of that (2D, hdx 0.6: 4 neighbours, kernel sum 57% off: density and
+                  pressure are the particle's own weight, not the fluid's).
+- `neighbour_capacity`  an explicit `particles.max_neighbors` below the lattice count within the list
+                  radius: every list is cut from the first step (the neighbour-overflow guard stops the
+                  run): severe.
+- `wall_layers`   wall thickness (layers x dx) against the kernel support: warning below the support
+                  (particles at the wall miss part of it); severe below half the support, where the
+                  Adami wall pressure comes from a sliver of the kernel and particles pass through.
+                  (A wall box outside the domain is a config error, refused by config.validate.)
+- `unbounded`     gravity along a non-periodic axis with no wall body and no reflecting faces: the fluid
+                  falls out of the domain (the run ends `unstable`, left_domain): severe.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from taichi_sph.config.schema import AUTO, Config
+from taichi_sph.errors import PreflightError
+from taichi_sph.scene.lattice import lattice_neighbour_count
+from taichi_sph.sph.kernels import support_factor
+
+# Courant number above which the reference step (cfl 0.25) is exceeded: a warning
+CFL_WARN = 0.4
+# Courant number on h at which explicit SPH schemes lose stability for sound waves: severe
+CFL_SEVERE = 1.0
+# Mach number beyond which WCSPH density errors exceed ~1%: a warning; at 1 the fluid is softer than its flow
+MACH_WARN = 0.1
+MACH_SEVERE = 1.0
+
+
+@dataclass(frozen=True)
+class CheckResult:
+    code: str          # short id: mach, cfl_number, cfl_dt, force_dt, viscous_dt, support,
+                       # neighbour_capacity, wall_layers, unbounded
+    message: str
+    severe: bool = False   # the run is very likely to blow up or give garbage
+
+    def __str__(self) -> str:
+        return self.message
+
+
+def signal_speed(cfg: Config) -> float:
+    """Speed that limits the explicit step: c0 + U for WCSPH, U for ISPH (no sound waves) [m/s]."""
+    return cfg.expected_speed + (cfg.sound_speed if cfg.solver == "wcsph" else 0.0)
+
+
+def time_step_limits(cfg: Config) -> dict[str, float]:
+    """The a-priori step limits at the configured Courant number (`time.cfl`, ISPH's `isph.cfl` when set) [s]:
+    cfl = C h / (c0 + U) (WCSPH) or C h / U (ISPH); force = C sqrt(h / |g|); viscous = 0.125 h^2 / nu."""
+    h = cfg.h
+    limits = {"cfl": cfg.cfl * h / signal_speed(cfg)}
+    if cfg.fluid.nu > 0:
+        limits["viscous"] = 0.125 * h * h / cfg.fluid.nu
+    g = float(np.linalg.norm(cfg.gravity_vector))
+    if g > 0:
+        limits["force"] = cfg.cfl * math.sqrt(h / g)
+    return limits
+
+
+def hard_time_step_limits(cfg: Config) -> dict[str, float]:
+    """Limits beyond which the explicit update is unstable, not just inaccurate [s]:
+    Courant number 1 on h for the signal and force limits, 2 x 0.125 h^2 / nu for viscosity."""
+    h = cfg.h
+    limits = {"cfl": CFL_SEVERE * h / signal_speed(cfg)}
+    if cfg.fluid.nu > 0:
+        limits["viscous"] = 0.25 * h * h / cfg.fluid.nu
+    g = float(np.linalg.norm(cfg.gravity_vector))
+    if g > 0:
+        limits["force"] = CFL_SEVERE * math.sqrt(h / g)
+    return limits
+
+
+def _mach(cfg: Config) -> list[CheckResult]:
+    if cfg.solver != "wcsph":
+        return []
+    mach = cfg.expected_speed / cfg.sound_speed
+    if mach <= MACH_WARN:
+        return []
+    if mach >= MACH_SEVERE:
+        msg = (f"Mach number {mach:.2f} = expected speed {cfg.expected_speed:.3g} m/s / c0 {cfg.sound_speed:.3g} m/s "
+               f"is >= 1: the fluid is softer than its own flow (it compresses instead of pushing back); raise "
+               f"fluid.c0 to >= {10 * cfg.expected_speed:.3g} m/s")
+    else:
+        msg = (f"Mach number {mach:.2f} = expected speed {cfg.expected_speed:.3g} m/s / c0 {cfg.sound_speed:.3g} m/s "
+               f"exceeds {MACH_WARN}: density errors ~ Ma^2 = {mach * mach:.1%}; raise fluid.c0 to >= "
+               f"{10 * cfg.expected_speed:.3g} m/s")
+    return [CheckResult("mach", msg, severe=mach >= MACH_SEVERE)]
+
+
+def _time_step(cfg: Config) -> list[CheckResult]:
+    out: list[CheckResult] = []
+    if cfg.time.dt == AUTO:
+        c = cfg.cfl
+        if c > CFL_WARN:
+            out.append(CheckResult(
+                "cfl_number", f"{cfg.solver_key('cfl', 'time.cfl')} = {c:g} exceeds {CFL_WARN}: " + (
+                    f"above {CFL_SEVERE:g} a signal crosses more than h per step, outside the CFL condition"
+                    if c > CFL_SEVERE else "expect noisy pressure; 0.25 is the usual choice"),
+                severe=c > CFL_SEVERE))
+        return out
+    dt = float(cfg.time.dt)
+    # the reference limits at Courant number 0.25 regardless of the configured cfl
+    h = cfg.h
+    ref = {"cfl": 0.25 * h / signal_speed(cfg)}
+    hard = hard_time_step_limits(cfg)
+    if "force" in hard:
+        ref["force"] = 0.25 * hard["force"] / CFL_SEVERE
+    if "viscous" in hard:
+        ref["viscous"] = 0.125 * h * h / cfg.fluid.nu
+    for name, lim in ref.items():
+        if dt > lim * 1.0001:
+            ratio = dt / lim
+            severe = dt > hard[name] * 1.0001
+            if severe:
+                tail = (f"; beyond the stability limit {hard[name]:.3g} s" + (
+                    f" (Courant number {CFL_SEVERE * dt / hard[name]:.2g} > {CFL_SEVERE:g} on h: outside the CFL "
+                    "condition, where an explicit update has no stability guarantee)" if name != "viscous" else ""))
+            else:
+                tail = f" (stability limit {hard[name]:.3g} s)"
+            out.append(CheckResult(f"{name}_dt", f"fixed time.dt = {dt:.3g} s is {ratio:.1f}x the {name} limit "
+                                                 f"{lim:.3g} s{tail}", severe=severe))
+    return out
+
+
+def lattice_neighbours(cfg: Config) -> int:
+    """Neighbours of one particle within the kernel support on the initial lattice."""
+    return lattice_neighbour_count(cfg.dim, cfg.particles.dx, support_factor(cfg.particles.kernel) * cfg.h)
+
+
+def _support(cfg: Config) -> list[CheckResult]:
+    per_support = lattice_neighbours(cfg)
+    minimum = {1: 4, 2: 12, 3: 30}[cfg.dim]
+    if per_support >= minimum:
+        return []
+    return [CheckResult("support", f"only {per_support} neighbours per support (hdx = {cfg.hdx}); "
+                                   f"use {cfg.solver_key('hdx', 'particles.hdx')} >= 1.2 for at least {minimum}",
+                        severe=per_support < minimum // 2)]
+
+
+def _neighbour_capacity(cfg: Config) -> list[CheckResult]:
+    if cfg.particles.max_neighbors == AUTO:
+        return []
+    radius = support_factor(cfg.particles.kernel) * cfg.h * (1.0 + cfg.skin_fraction)
+    lattice = lattice_neighbour_count(cfg.dim, cfg.particles.dx, radius)
+    capacity = int(cfg.particles.max_neighbors)
+    if capacity >= lattice:
+        return []
+    return [CheckResult("neighbour_capacity", f"particles.max_neighbors = {capacity} is below the {lattice} neighbours "
+                                              f"every particle has on the initial lattice: each list is cut from the "
+                                              f"first step; use 'auto' or >= {int(math.ceil(2.5 * lattice))}",
+                        severe=True)]
+
+
+def _unbounded(cfg: Config) -> list[CheckResult]:
+    if not cfg.has_gravity or cfg.reflecting.enabled or any(b.type.startswith("wall") for b in cfg.bodies):
+        return []
+    g = cfg.gravity_vector
+    axis = max(range(cfg.dim), key=lambda a: abs(g[a]))
+    if cfg.periodic[axis]:
+        return []
+    return [CheckResult("unbounded", f"gravity acts along axis {axis} but no wall body and no reflecting face holds "
+                                     f"the fluid: it falls out of the domain; add a wall_box or set "
+                                     f"reflecting.enabled: true", severe=True)]
+
+
+def _walls(cfg: Config) -> list[CheckResult]:
+    out: list[CheckResult] = []
+    dx = cfg.particles.dx
+    support = support_factor(cfg.particles.kernel) * cfg.h
+    need = int(math.ceil(support / dx - 1e-9))
+    for i, b in enumerate(cfg.bodies):
+        if b.type == "wall_box" and b.layers < need:
+            thin = b.layers * dx < 0.5 * support
+            out.append(CheckResult("wall_layers", f"bodies[{i}] has {b.layers} wall layers but the kernel support "
+                                                  f"({support:.3g} m) spans {need}: particles near the wall lack "
+                                                  f"neighbours" + (" and can pass through it" if thin else "")
+                                                  + f"; set layers: {need}", severe=thin))
+    return out
+
+
+def a_priori_checks(cfg: Config) -> list[CheckResult]:
+    """Everything that can be judged before the first step."""
+    return (_mach(cfg) + _time_step(cfg) + _support(cfg) + _neighbour_capacity(cfg) + _walls(cfg)
+            + _unbounded(cfg))
+
+
+def severe_checks(cfg: Config) -> list[CheckResult]:
+    """The checks that make a run pointless (stability's reason to refuse it)."""
+    return [c for c in a_priori_checks(cfg) if c.severe]
+
+
+def refusals(cfg: Config, *, render: bool = False, severe: bool = True) -> list[str]:
+    """Why a run of `cfg` would be refused: not enough memory (memory.py), then every severe check."""
+    from taichi_sph.run.memory import preflight
+    _, memory_line = preflight(cfg, render=render)
+    lines = [memory_line] if memory_line else []
+    return lines + ([c.message for c in severe_checks(cfg)] if severe else [])
+
+
+def preflight(cfg: Config, *, force: bool = False, render: bool = False, severe: bool = True) -> None:
+    """Refuse (PreflightError: one line, exit 2) a run that does not fit in memory or (`severe`) cannot
+    give a meaningful result, unless `force`."""
+    if force:
+        return
+    lines = refusals(cfg, render=render, severe=severe)
+    if lines:
+        raise PreflightError(f"{cfg.name}: refused: " + "; ".join(lines) + " (--force runs anyway)")

@@ -1,0 +1,214 @@
+"""Bodies -> particles: lattice fluid blocks and spheres, layered wall boxes, velocity expressions.
+
+Everything here is numpy at set-up time; the solvers receive plain arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from taichi_sph.config.expressions import evaluate_expression
+from taichi_sph.config.schema import Body, Config
+from taichi_sph.errors import ConfigError
+from taichi_sph.scene.lattice import lattice_box, lattice_sphere
+
+FLUID = 0
+WALL = 1
+
+
+@dataclass
+class ParticleArrays:
+    """Initial particle state, numpy, one row per particle (fluid and wall together)."""
+
+    x: np.ndarray        # (N, dim) positions [m]
+    v: np.ndarray        # (N, dim) velocities [m/s] (prescribed for walls)
+    rho: np.ndarray      # (N,) density [kg/m^3]
+    p: np.ndarray        # (N,) pressure [Pa]
+    mass: np.ndarray     # (N,) mass [kg]
+    kind: np.ndarray     # (N,) FLUID or WALL
+
+    @property
+    def n(self) -> int:
+        return len(self.kind)
+
+    @property
+    def n_fluid(self) -> int:
+        return int(np.count_nonzero(self.kind == FLUID))
+
+    @property
+    def n_wall(self) -> int:
+        return int(np.count_nonzero(self.kind == WALL))
+
+
+def wall_box_points(body: Body, dx: float) -> np.ndarray:
+    """`layers` layers of lattice points around the inner box [lo, hi] (top face left open if asked)."""
+    dim = len(body.lo)
+    thick = body.layers * dx
+    lo_ext = [body.lo[a] - thick for a in range(dim)]
+    hi_ext = [body.hi[a] + thick for a in range(dim)]
+    if body.open_top:
+        hi_ext[-1] = body.hi[-1]
+    pts = lattice_box(tuple(lo_ext), tuple(hi_ext), dx)
+    inside = np.ones(len(pts), dtype=bool)
+    for a in range(dim):
+        inside &= (pts[:, a] > body.lo[a]) & (pts[:, a] < body.hi[a])
+    return pts[~inside]
+
+
+def body_velocity(body: Body, pts: np.ndarray, key: str, rng: np.random.Generator) -> np.ndarray:
+    """Velocity of each point of a body: constants or expressions of its coordinates."""
+    dim = pts.shape[1]
+    v = np.zeros_like(pts)
+    if body.velocity is None:
+        return v
+    coords = {name: pts[:, a] for a, name in enumerate("xyz"[:dim])}
+    for a, comp in enumerate(body.velocity):
+        if isinstance(comp, str):
+            v[:, a] = evaluate_expression(comp, coords, f"{key}.velocity[{a}]", rng)
+        else:
+            v[:, a] = float(comp)
+    return v
+
+
+def body_pressure(body: Body, pts: np.ndarray, key: str, rng: np.random.Generator) -> np.ndarray:
+    """Initial pressure of each point of a fluid body: a constant or an expression of its coordinates."""
+    if isinstance(body.pressure, str):
+        coords = {name: pts[:, a] for a, name in enumerate("xyz"[:pts.shape[1]])}
+        return evaluate_expression(body.pressure, coords, key, rng)
+    return np.full(len(pts), float(body.pressure))
+
+
+def tait_b(rho0: float, c0: float, gamma: float) -> float:
+    """Tait stiffness B = c0^2 rho0 / gamma."""
+    return c0 * c0 * rho0 / gamma
+
+
+def build_particles(cfg: Config) -> ParticleArrays:
+    """Turn the config's bodies into particle arrays (fluid first, then walls)."""
+    dx = cfg.particles.dx
+    rng = np.random.default_rng(cfg.seed)
+    g = np.asarray(cfg.gravity_vector, dtype=np.float64)
+    gmag = float(np.linalg.norm(g))
+    c0 = cfg.sound_speed
+    B = tait_b(cfg.fluid.rho0, c0, cfg.fluid.gamma)
+    xs, vs, kinds, ps = [], [], [], []
+    for i, body in enumerate(cfg.bodies):
+        key = f"bodies[{i}]"
+        if body.type == "fluid_block":
+            pts = lattice_box(body.lo, body.hi, dx)
+        elif body.type == "fluid_sphere":
+            pts = lattice_sphere(body.center, body.radius, dx)
+        elif body.type == "wall_box":
+            pts = wall_box_points(body, dx)
+        else:
+            pts = lattice_box(body.lo, body.hi, dx)
+        if len(pts) == 0:
+            raise ConfigError(f"{body.type} holds no particle at dx = {dx:g}; make it larger or dx smaller", key=key)
+        kind = FLUID if body.type.startswith("fluid") else WALL
+        p = np.zeros(len(pts))
+        if kind == FLUID and body.hydrostatic and gmag > 0:
+            # depth measured along g from the body's highest point: p = rho0 |g| depth
+            heights = -(pts @ g) / gmag
+            p = cfg.fluid.rho0 * gmag * (heights.max() + 0.5 * dx - heights)
+        if kind == FLUID and body.pressure is not None:
+            p = p + body_pressure(body, pts, f"{key}.pressure", rng)
+        xs.append(pts)
+        vs.append(body_velocity(body, pts, key, rng))
+        kinds.append(np.full(len(pts), kind, dtype=np.int32))
+        ps.append(p)
+    x = np.concatenate(xs)
+    v = np.concatenate(vs)
+    kind = np.concatenate(kinds)
+    p = np.concatenate(ps)
+    order = np.argsort(kind, kind="stable")
+    x, v, kind, p = x[order], v[order], kind[order], p[order]
+    x, v, kind, p = _remove_overlaps(x, v, kind, p, dx)
+    rho = cfg.fluid.rho0 * (1.0 + p / B) ** (1.0 / cfg.fluid.gamma) if cfg.solver == "wcsph" else np.full(len(p), cfg.fluid.rho0)
+    # every particle starts with the lattice volume dx^dim, so m = rho dx^dim (wall masses follow their
+    # extrapolated density during the run: see SolverBase.adami_wall_extrapolation)
+    mass = rho * dx ** cfg.dim
+    return ParticleArrays(x=x, v=v, rho=rho, p=p, mass=mass, kind=kind)
+
+
+def _remove_overlaps(x, v, kind, p, dx):
+    """Drop fluid particles that sit on a wall particle (same dx/2 cell): walls win."""
+    walls = kind == WALL
+    if not walls.any():
+        return x, v, kind, p
+    cell = np.round(x / (0.5 * dx)).astype(np.int64)  # lattice points closer than dx/4 share a cell
+    cell -= cell.min(axis=0)
+    span = cell.max(axis=0) + 1
+    code = np.ravel_multi_index(tuple(cell.T), tuple(span))
+    drop = (kind == FLUID) & np.isin(code, code[walls])
+    keep = ~drop
+    return x[keep], v[keep], kind[keep], p[keep]
+
+
+def wall_crossings(x: np.ndarray, kind: np.ndarray, cfg: Config) -> int:
+    """Fluid particles found inside the wall layers or beyond them (outside a wall_box's inner box)."""
+    count = 0
+    fluid = x[kind == FLUID]
+    for body in cfg.bodies:
+        if body.type != "wall_box":
+            continue
+        outside = np.zeros(len(fluid), dtype=bool)
+        for a in range(cfg.dim):
+            below = fluid[:, a] < body.lo[a]
+            above = fluid[:, a] > body.hi[a]
+            if body.open_top and a == cfg.dim - 1:
+                above[:] = False
+            outside |= below | above
+        count += int(np.count_nonzero(outside))
+    return count
+
+
+def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each wall particle, the face of its wall body that it lies behind: unit normal n into the
+    fluid and offset s, so that y . n - s is a point's signed distance to that face (rows of fluid
+    particles are zero). wall_box: the inner face the particle is furthest outside of (a corner
+    particle is behind two; either bounds the fluid); wall_block: the nearest face, normal outward.
+
+    A body only claims the particles of its own shape: an open-top box's shell ends at its top (a lid
+    laid across it is not part of it: claiming the lid's particles gave them the box's side faces, see
+    physics/walls.py), and no face is perpendicular to a periodic axis (a block that spans one has no
+    end there: particles wrapping through the seam met a phantom face)."""
+    dim = cfg.dim
+    normal = np.zeros((len(x), dim))
+    offset = np.zeros(len(x))
+    unassigned = kind == WALL
+    no_face = np.repeat(np.asarray(cfg.periodic, dtype=bool), 2)  # columns (lo_0, hi_0, lo_1, ...)
+    for body in cfg.bodies:
+        if body.type not in ("wall_box", "wall_block") or not unassigned.any():
+            continue
+        lo, hi = np.asarray(body.lo, float), np.asarray(body.hi, float)
+        y = x[unassigned]
+        if body.type == "wall_box":
+            thick = body.layers * cfg.particles.dx + 1e-9
+            top = hi + thick
+            if body.open_top:
+                top[-1] = hi[-1] + 1e-9  # wall_box_points stop at hi along the open axis
+            inside_shell = np.all((y > lo - thick) & (y < top), axis=1)
+            # how far outside each face: columns (lo_0, hi_0, lo_1, hi_1, ...), normals +e_a / -e_a
+            depth = np.stack([c for a in range(dim) for c in (lo[a] - y[:, a], y[:, a] - hi[a])], axis=1)
+            if body.open_top:
+                depth[:, 2 * dim - 1] = -np.inf
+        else:
+            inside_shell = np.all((y > lo - 1e-9) & (y < hi + 1e-9), axis=1)
+            # a block's particle is behind the face it is nearest to (largest negative depth)
+            depth = -np.stack([c for a in range(dim) for c in (y[:, a] - lo[a], hi[a] - y[:, a])], axis=1)
+        depth[:, no_face] = -np.inf
+        face = np.argmax(depth, axis=1)
+        axis, upper = face // 2, face % 2 == 1
+        sign = np.where(upper, -1.0, 1.0) if body.type == "wall_box" else np.where(upper, 1.0, -1.0)
+        n = np.zeros_like(y)
+        n[np.arange(len(y)), axis] = sign
+        s = np.where(upper, hi[axis], lo[axis]) * sign
+        idx = np.flatnonzero(unassigned)[inside_shell]
+        normal[idx] = n[inside_shell]
+        offset[idx] = s[inside_shell]
+        unassigned[idx] = False
+    return normal, offset
+
+

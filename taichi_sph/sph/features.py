@@ -1,0 +1,105 @@
+"""The frozen feature set a scene needs: it decides what is compiled into the solver kernels
+(through `ti.static`) and which fields are allocated."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+from taichi_sph.config.schema import Config
+
+
+@dataclass(frozen=True)
+class Features:
+    """Everything that changes the compiled code. Derived from the config, never set by hand."""
+
+    dim: int
+    solver: str
+    kernel: str
+    precision: str
+    walls: bool
+    moving_walls: bool
+    no_slip: bool
+    gravity: bool
+    central_force: bool
+    laminar_viscosity: bool
+    artificial_viscosity: bool
+    density: str                  # continuity | summation (WCSPH); ISPH always uses summation for its source
+    density_diffusion: str        # none | molteni | fourtakas
+    tensile_correction: bool
+    tensile_instability_control: bool  # Sun et al. 2017's difference form in tension (WCSPH)
+    integrator: str
+    periodic: tuple[bool, ...]
+    reflecting: bool
+    shifting: bool
+    shifting_model: str           # skillen | sun (solvers/shifting.py)
+    clamp_negative_pressure: bool
+
+    @classmethod
+    def from_config(cls, cfg: Config, n_wall: int) -> "Features":
+        wc = cfg.wcsph
+        walls = n_wall > 0
+        moving = any(b.type.startswith("wall") and b.velocity is not None
+                     and any(c != 0 for c in b.velocity) for b in cfg.bodies)
+        diffusion = wc.density_diffusion.model
+        if wc.density_diffusion.delta == 0.0 or cfg.solver != "wcsph" or wc.density != "continuity":
+            diffusion = "none"
+        if diffusion == "fourtakas" and not cfg.has_gravity:
+            diffusion = "molteni"  # no hydrostatic part to remove
+        alpha, beta = cfg.artificial_viscosity
+        return cls(
+            dim=cfg.dim,
+            solver=cfg.solver,
+            kernel=cfg.particles.kernel,
+            precision=cfg.precision,
+            walls=walls,
+            moving_walls=walls and moving,
+            no_slip=walls and cfg.walls.slip == "no_slip",
+            gravity=cfg.has_gravity,
+            central_force=cfg.central_force.omega > 0.0,
+            laminar_viscosity=cfg.fluid.nu > 0.0,
+            artificial_viscosity=(alpha > 0.0 or beta > 0.0),
+            density=wc.density if cfg.solver == "wcsph" else "summation",
+            density_diffusion=diffusion,
+            tensile_correction=cfg.solver == "wcsph" and wc.tensile_correction.enabled,
+            tensile_instability_control=cfg.solver == "wcsph" and wc.tensile_instability_control,
+            integrator=wc.integrator if cfg.solver == "wcsph" else "symplectic_euler",
+            periodic=tuple(cfg.periodic),
+            reflecting=cfg.reflecting.enabled,
+            shifting=cfg.shifting_enabled,
+            shifting_model=cfg.shifting.model,
+            clamp_negative_pressure=cfg.solver == "wcsph" and wc.clamp_negative_pressure,
+        )
+
+    def compiled_in(self) -> list[str]:
+        """Human-readable list of the terms compiled into this run's kernels."""
+        terms = [f"{self.solver}", f"kernel:{self.kernel}", f"dim:{self.dim}", f"precision:{self.precision}"]
+        if self.solver == "wcsph":
+            terms += ["tait_eos", "symmetric_pressure_gradient", f"density:{self.density}", f"integrator:{self.integrator}"]
+            if self.density_diffusion != "none":
+                terms.append(f"density_diffusion:{self.density_diffusion}")
+            if self.tensile_correction:
+                terms.append("monaghan_tensile_correction")
+            if self.tensile_instability_control:
+                terms.append("tensile_instability_control")
+        if self.artificial_viscosity:
+            terms.append("monaghan_artificial_viscosity")
+        if self.laminar_viscosity:
+            terms.append("morris_laminar_viscosity")
+        if self.gravity:
+            terms.append("body_force")
+        if self.central_force:
+            terms.append("central_force")
+        if self.walls:
+            terms.append("adami_walls:" + ("no_slip" if self.no_slip else "free_slip"))
+        if any(self.periodic):
+            terms.append("periodic:" + "".join("xyz"[a] for a, p in enumerate(self.periodic) if p))
+        if self.reflecting:
+            terms.append("reflecting_faces")
+        if self.shifting:
+            terms.append(f"particle_shifting:{self.shifting_model}")
+        if self.clamp_negative_pressure:
+            terms.append("clamp_negative_pressure")
+        return terms
+
+    def as_dict(self) -> dict:
+        return asdict(self)

@@ -1,0 +1,114 @@
+"""How pair loops reach a particle's neighbours: stored Verlet lists or a walk over the sorted cells.
+
+Every pair loop in the solvers reads
+
+    for s in range(NS.slots()):
+        k0, k1 = NS.span(a, s)
+        for k in range(k0, k1):
+            b = NS.at(a, k)
+            r_ab = NS.pair_vector(x_a, x_b)
+            if NS.listed(r_ab):   # compiled out with lists
+                ...
+
+`particles.neighbor_access` picks the access at compile time; both compile from the same loop bodies
+and visit the same neighbours in the same order (tests/test_neighbors.py):
+- 'lists' (default): the build's step 5 (neighbors.py) stores the list; a pair loop reads count[a] and one i32 per neighbour.
+  Bytes per fluid particle-step, WCSPH (force, continuity and wall passes; N = neighbours within the list
+  radius, support x 1.15: ~28 in 2D at h = 1.3 dx, ~51 in 3D at support 2 dx): 3 x 4 N of indices
+  (~340 B in 2D, ~610 B in 3D) plus the rebuild's 4 N written every ~10-20 steps, on top of the gathered
+  neighbour data (x, v, rho, p, mass, kind: ~40 B per neighbour in 3D f32, mostly cache hits once sorted).
+- 'cells': no list is stored (saves 4 x max_neighbors B per particle: 0.5-1 KB in 3D); a pair loop walks
+  the 3**(dim-1) rows of 3 cells around the cell the particle was sorted into at the last build (cells
+  of the list radius, so the Verlet skin still defers rebuilds) and tests each candidate's distance:
+  ~(3 x 1.15 support / dx)**dim candidates (~80 in 2D, ~330 in 3D at support 2 dx) of 4-12 B each per
+  pass, read contiguously (the layout a GPU coalesces; what the Taichi SPH demo does), 2.7x the arithmetic.
+Measured on the 2-core CPU (PySPH's dam-break scene to t = 0.1 s, f32, one thread): lists 0.66 s,
+cells 1.79 s; hence lists by default on the CPU. On a GPU the choice is the `bench --report` rows
+"wcsph" against "wcsph-cells" (not yet run on one). ISPH needs the lists (its pressure equation's rows).
+
+"""
+
+# No `from __future__ import annotations` here: Taichi reads the ti.func signatures.
+import taichi as ti
+
+ACCESS = ("lists", "cells")
+
+
+class NeighborAccess:
+    """The access half of NeighborSearch (neighbors.py), which provides the fields used here: count,
+    neighbors (lists), cell_id, cell_start, n_cells, strides, periodic, support_radius, _linear."""
+
+    @ti.func
+    def slots(self):
+        """Number of candidate ranges of a particle: 1 (its list) or 3 per row of cells."""
+        return ti.static(1 if self.lists else 3 * 3 ** (self.dim - 1))
+
+    @ti.func
+    def span(self, a, s):
+        """Candidate range [begin, end) number s of particle a: its whole list, or with 'cells' for row
+        r = s // 3 of its 3**dim cells: part 0 = the row's particles (up to a in a's own row), part 1 = those
+        after a in its own row (empty elsewhere), part 2 = the wrapped cell of a periodic last axis."""
+        begin, end = 0, 0
+        if ti.static(self.lists):
+            end = self.count[a]
+        else:
+            last = ti.static(self.dim - 1)
+            nc_last = ti.static(self.n_cells[last])
+            row, part = s // 3, s % 3
+            cell = self.cell_id[a]
+            cj = ti.Vector.zero(ti.i32, self.dim)
+            own = True
+            inside = True
+            for d in ti.static(range(self.dim)):
+                cj[d] = (cell // ti.static(self.strides[d])) % ti.static(self.n_cells[d])
+            for d in ti.static(range(last)):
+                o = (row // ti.static(3 ** (last - 1 - d))) % 3 - 1
+                own = own and o == 0
+                c = cj[d] + o
+                if ti.static(self.periodic[d]):
+                    c = (c + ti.static(self.n_cells[d])) % ti.static(self.n_cells[d])
+                elif c < 0 or c >= ti.static(self.n_cells[d]):
+                    inside = False
+                cj[d] = c
+            if inside:
+                base = self._linear(cj) - cj[last]  # the last axis has stride 1
+                if part == 2:
+                    if ti.static(self.periodic[last]):
+                        wrapped = -1  # n_cells >= 3, so at most one end wraps
+                        if cj[last] == 0:
+                            wrapped = nc_last - 1
+                        elif cj[last] == nc_last - 1:
+                            wrapped = 0
+                        if wrapped >= 0:
+                            begin = self.cell_start[base + wrapped]
+                            end = self.cell_start[base + wrapped + 1]
+                else:
+                    first = ti.max(cj[last] - 1, 0)
+                    final = ti.min(cj[last] + 1, nc_last - 1)
+                    begin = self.cell_start[base + first]
+                    end = self.cell_start[base + final + 1]
+                    if own:  # skip a itself: part 0 ends before it, part 1 starts after it
+                        if part == 0:
+                            end = a
+                        else:
+                            begin = a + 1
+                    elif part == 1:
+                        end = begin
+        return begin, end
+
+    @ti.func
+    def at(self, a, k):
+        """Candidate k of particle a's current span: its k-th list entry, or particle k itself."""
+        b = k
+        if ti.static(self.lists):
+            b = self.neighbors[a, k]
+        return b
+
+    @ti.func
+    def listed(self, r_ab):
+        """Would the pair be in a list (|r_ab| < the list radius)? Always true for a list's own entries; a
+        test for the cells' candidates, for the few uses that are not weighted by the kernel."""
+        inside = True
+        if ti.static(not self.lists):
+            inside = r_ab.dot(r_ab) < ti.static(self.support_radius * self.support_radius)
+        return inside

@@ -1,0 +1,238 @@
+"""Metrics of the validation scenes: Taylor-Green vortex, start-up Poiseuille flow, lid-driven cavity.
+
+Imported by `metrics.make_metrics`; each class registers itself under its config `metrics[].type`.
+Every metric reads fluid particles only (kind 0) and compares them with `reference.py`:
+
+- taylor_green: KE decay rate (least-squares slope of ln KE(t) over the output times) against
+  -16 pi^2 nu, and the L1 velocity error at the end against the analytic field at the particles.
+- poiseuille:   max_a |u_a - u_series(y_a, t)| / u_max at the end (Morris et al. 1997 series).
+- cavity:       RMS of the binned centreline profiles u(y) at x = L/2 and v(x) at y = L/2 against
+                Ghia et al. (1982), Re = 100, over the last 10% of the run.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from taichi_sph.config.schema import Config, Metric
+from taichi_sph.errors import ConfigError
+from taichi_sph.scene.bodies import FLUID
+from taichi_sph.validation import reference as ref
+from taichi_sph.validation.metrics.base import MetricObserver
+
+
+def _fluid(state: dict) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Positions, velocities and masses of the fluid particles, float64."""
+    f = state["kind"] == FLUID
+    return (np.asarray(state["x"][f], dtype=np.float64), np.asarray(state["v"][f], dtype=np.float64),
+            np.asarray(state["mass"][f], dtype=np.float64))
+
+
+# ----------------------------------------------------------------------------- Taylor-Green
+def taylor_green_errors(x: np.ndarray, v: np.ndarray, t: float, nu: float) -> dict:
+    """Velocity errors of particles at x (N, 2) with velocities v against the analytic field at time t
+    (periodic unit box, U = 1):
+
+    l1_velocity        mean_a |v_a - v_exact(x_a)| / mean_a |v_exact(x_a)|  (vector difference, scaled
+                       by the decayed mean speed, so it does not shrink as the vortex decays)
+    l1_velocity_pysph  mean_a | |v_a| - |v_exact(x_a)| | / mean_a |v_exact(x_a)|  (PySPH's `l1`: speed only)
+    l1_velocity_over_U mean_a |v_a - v_exact(x_a)| / U  (reference.l1_velocity_error, U = 1)
+    linf_speed_rel     |max |v| - U e^{bt}| / (U e^{bt})  (PySPH's `linf`)
+    """
+    u_e, v_e = ref.taylor_green_velocity(x[:, 0], x[:, 1], t, nu)
+    exact = np.stack([u_e, v_e], axis=1)
+    speed_e = np.linalg.norm(exact, axis=1)
+    speed = np.linalg.norm(v, axis=1)
+    mean_speed = float(speed_e.mean())
+    over_u = ref.l1_velocity_error(v, exact, U=1.0)
+    amplitude = math.exp(ref.taylor_green_b(nu) * t)
+    return {"l1_velocity": over_u / mean_speed,
+            "l1_velocity_pysph": float(np.abs(speed - speed_e).mean() / mean_speed),
+            "l1_velocity_over_U": over_u,
+            "linf_speed_rel": abs(float(speed.max()) - amplitude) / amplitude}
+
+
+class TaylorGreenMetric(MetricObserver):
+    """Taylor-Green vortex in the periodic unit box, U = 1, Re = 1 / nu.
+
+    At every output time: the fluid kinetic energy sum_a m_a |v_a|^2 / 2 and the L1 velocity error.
+    At the end: decay_rate = slope of ln KE against t (least squares over all output times),
+    decay_rate_rel_error = (decay_rate - exact) / exact with exact = -16 pi^2 nu (> 0: too much
+    dissipation), and the velocity errors of `taylor_green_errors` at the final time.
+    """
+
+    def __init__(self, cfg: Config, spec: Metric) -> None:
+        super().__init__(cfg, spec)
+        if cfg.dim != 2:
+            raise ConfigError("the taylor_green metric is two-dimensional", key="metrics")
+        self.nu = cfg.fluid.nu
+        self.t: list[float] = []
+        self.ke: list[float] = []
+        self.last_t = 0.0
+
+    def columns(self) -> list[str]:
+        return ["tg_ke_over_exact", "tg_l1_velocity"]
+
+    def observe(self, t: float, state: dict) -> dict:
+        x, v, m = _fluid(state)
+        ke = float(0.5 * np.sum(m * np.einsum("ij,ij->i", v, v)))
+        self.t.append(t)
+        self.ke.append(ke)
+        self.last_t = t
+        ke0 = self.ke[0] / math.exp(ref.taylor_green_ke_decay_rate(self.nu) * self.t[0])
+        ke_exact = ke0 * math.exp(ref.taylor_green_ke_decay_rate(self.nu) * t)
+        return {"tg_ke_over_exact": ke / ke_exact,
+                "tg_l1_velocity": taylor_green_errors(x, v, t, self.nu)["l1_velocity"]}
+
+    def finish(self, state: dict) -> dict:
+        x, v, _ = _fluid(state)
+        exact = ref.taylor_green_ke_decay_rate(self.nu)
+        out = taylor_green_errors(x, v, self.last_t, self.nu)  # first: l1_velocity (>= 0) stands for the scene
+        if len(self.t) >= 2 and all(k > 0 and math.isfinite(k) for k in self.ke):
+            rate = ref.decay_rate_fit(self.t, self.ke)
+            out["decay_rate"] = rate
+            out["decay_rate_rel_error"] = (rate - exact) / exact
+        return out
+
+
+# ----------------------------------------------------------------------------- Poiseuille
+class PoiseuilleMetric(MetricObserver):
+    """Start-up plane Poiseuille flow between plates at y = floor and y = floor + width, driven by the
+    body force F = gravity[0] along x (Morris, Fox & Zhu 1997).
+
+    linf_velocity_rel = max_a |u_a - u_series(y_a - floor, t)| / u_max, u_max = F width^2 / (8 nu),
+    at every output time (column) and at the end (errors); also the steady-state error of the
+    centre speed (mean u of the particles within 0.75 dx of mid-channel over u_series there).
+    """
+
+    def __init__(self, cfg: Config, spec: Metric) -> None:
+        super().__init__(cfg, spec)
+        self.nu = cfg.fluid.nu
+        self.force = float(cfg.gravity_vector[0])
+        if self.nu <= 0 or self.force == 0:
+            raise ConfigError("the poiseuille metric needs fluid.nu > 0 and a body force gravity[0] != 0", key="metrics")
+        self.width = spec.width
+        self.u_max = self.force * self.width ** 2 / (8.0 * self.nu)
+        self.last_t = 0.0
+
+    def columns(self) -> list[str]:
+        return ["poiseuille_linf_rel"]
+
+    def errors_at(self, t: float, state: dict) -> dict:
+        x, v, _ = _fluid(state)
+        y = x[:, 1] - self.spec.floor
+        exact = ref.poiseuille_velocity(y, t, self.nu, self.force, self.width)
+        linf = float(np.max(np.abs(v[:, 0] - exact)) / abs(self.u_max))
+        centre = np.abs(y - 0.5 * self.width) < 0.75 * self.cfg.particles.dx
+        out = {"linf_velocity_rel": linf,
+               "v_max_over_u_max": float(np.max(np.abs(v[:, 1])) / abs(self.u_max))}
+        if centre.any():
+            out["centre_speed_rel_error"] = float(v[centre, 0].mean() / exact[centre].mean() - 1.0)
+        return out
+
+    def observe(self, t: float, state: dict) -> dict:
+        self.last_t = t
+        return {"poiseuille_linf_rel": self.errors_at(t, state)["linf_velocity_rel"]}
+
+    def finish(self, state: dict) -> dict:
+        return self.errors_at(self.last_t, state)
+
+
+# ----------------------------------------------------------------------------- lid-driven cavity
+def binned_profile(coord: np.ndarray, value: np.ndarray, lo: float, hi: float, width: float
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Mean of `value` in bins of `width` spanning [lo, hi] along `coord`; empty bins are left out.
+    Returns (bin centres, means)."""
+    n = max(int(round((hi - lo) / width)), 1)
+    edges = np.linspace(lo, hi, n + 1)
+    idx = np.clip(np.searchsorted(edges, coord, side="right") - 1, 0, n - 1)
+    inside = (coord >= lo) & (coord <= hi)
+    counts = np.bincount(idx[inside], minlength=n)
+    sums = np.bincount(idx[inside], weights=value[inside], minlength=n)
+    keep = counts > 0
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    return centres[keep], sums[keep] / counts[keep]
+
+
+def centerline_samples(x: np.ndarray, v: np.ndarray, side: float, lo: tuple[float, float], dx: float
+                       ) -> tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """The particles of a square cavity [lo, lo + side]^2 near its centrelines, in cavity units
+    (coordinates over the side): ((y, u) of those with |x - mid| < dx, (x, v) of those with
+    |y - mid| < dx). Velocities as they are (the caller divides by the lid speed)."""
+    xs = (x[:, 0] - lo[0]) / side
+    ys = (x[:, 1] - lo[1]) / side
+    band = dx / side
+    near_v = np.abs(xs - 0.5) < band
+    near_h = np.abs(ys - 0.5) < band
+    return (ys[near_v], v[near_v, 0]), (xs[near_h], v[near_h, 1])
+
+
+class CavityMetric(MetricObserver):
+    """Lid-driven cavity (fluid filling the first fluid_block, a square of side `width`, lid on top) at
+    Re = 100, against Ghia, Ghia & Shin (1982).
+
+    Profiles: u of the particles within dx of the vertical centreline, averaged in bins of dx along y;
+    v along the horizontal centreline likewise. centerline_rms_u is the RMS over the interior Ghia
+    points of u_sim(y) / U - u_Ghia (the wall points, matched by construction, are left out);
+    centerline_rms_v likewise; centerline_rms their mean. The errors use the particles of every
+    output time in the last 10% of the run pooled (the steady flow, with less particle noise than one
+    snapshot); `*_final` are the same from the last state alone. Columns: the instantaneous RMS.
+    """
+
+    AVERAGE_FROM = 0.9  # pool the output times t >= AVERAGE_FROM x t_end
+
+    def __init__(self, cfg: Config, spec: Metric) -> None:
+        super().__init__(cfg, spec)
+        fluid = next(b for b in cfg.bodies if b.type == "fluid_block")
+        self.lo = (float(fluid.lo[0]), float(fluid.lo[1]))
+        self.side = spec.width
+        self.lid = spec.lid_velocity
+        re = self.lid * self.side / cfg.fluid.nu if cfg.fluid.nu > 0 else math.inf
+        if abs(re - 100.0) > 1.0:
+            raise ConfigError(f"the cavity metric compares with Ghia et al. at Re = 100; this scene has Re = {re:.4g}",
+                              key="metrics")
+        self.t_from = self.AVERAGE_FROM * cfg.time.t_end
+        self.pooled: list[tuple[tuple[np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]] = []
+
+    def columns(self) -> list[str]:
+        return ["cavity_rms_u", "cavity_rms_v"]
+
+    def samples(self, state: dict):
+        x, v, _ = _fluid(state)
+        return centerline_samples(x, v, self.side, self.lo, self.cfg.particles.dx)
+
+    def errors_of(self, samples) -> dict:
+        """RMS against Ghia of the binned profiles of pooled samples ((y, u), (x, v))."""
+        (y_s, u_s), (x_s, v_s) = samples
+        band = self.cfg.particles.dx / self.side
+        y_b, u_b = binned_profile(y_s, u_s / self.lid, 0.0, 1.0, band)
+        x_b, v_b = binned_profile(x_s, v_s / self.lid, 0.0, 1.0, band)
+        (y_r, u_r), (x_r, v_r) = ref.ghia_centerlines()
+        iu = (y_r > 0) & (y_r < 1)
+        iv = (x_r > 0) & (x_r < 1)
+        rms_u = ref.centerline_rms(y_b, u_b, y_r[iu], u_r[iu])
+        rms_v = ref.centerline_rms(x_b, v_b, x_r[iv], v_r[iv])
+        return {"centerline_rms_u": rms_u, "centerline_rms_v": rms_v, "centerline_rms": 0.5 * (rms_u + rms_v)}
+
+    def observe(self, t: float, state: dict) -> dict:
+        samples = self.samples(state)
+        if t >= self.t_from - 1e-12:
+            self.pooled.append(samples)
+        e = self.errors_of(samples)
+        return {"cavity_rms_u": e["centerline_rms_u"], "cavity_rms_v": e["centerline_rms_v"]}
+
+    def finish(self, state: dict) -> dict:
+        final = self.errors_of(self.samples(state))
+        out = {}
+        if self.pooled:
+            pooled = tuple(tuple(np.concatenate([s[line][k] for s in self.pooled]) for k in range(2))
+                           for line in range(2))
+            out.update(self.errors_of(pooled))
+            out["centerline_outputs_pooled"] = len(self.pooled)
+        else:
+            out.update(final)
+            out["centerline_outputs_pooled"] = 0
+        out.update({f"{k}_final": val for k, val in final.items()})
+        return out
