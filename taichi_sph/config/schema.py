@@ -1,7 +1,7 @@
 """Configuration: YAML (+ `extends:`) -> overrides -> validated, frozen dataclasses.
 
 Every key, its default, unit and allowed values is declared once, here, in the dataclass
-fields' metadata; `taichi-sph config-doc` prints the reference that README.md carries.
+fields' metadata; `taichi-sph config-doc` prints the reference (docs/config_reference.md).
 Every refusal is a ConfigError naming the file, the key and what is allowed.
 """
 

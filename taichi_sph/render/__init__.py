@@ -1,4 +1,4 @@
-"""Rendering: particles to pictures, for offscreen frames and videos and for the live window (view.py).
+"""Rendering: particles to pictures, for offscreen frames and videos and for the live window (cli/view.py).
 
 One idea a module:
 - settings.py: `RenderSettings`, the `render:` block of a config

@@ -1,4 +1,4 @@
-"""What a frame looks like: `RenderSettings` mirrors the `render:` block of a config (see config.py)."""
+"""What a frame looks like: `RenderSettings` mirrors the `render:` block of a config (see config/schema.py)."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ VIDEO_FORMATS = ("mp4", "gif", "none")
 
 @dataclass(frozen=True)
 class RenderSettings:
-    """What a frame looks like. Mirrors the `render:` block of a config (see config.py)."""
+    """What a frame looks like. Mirrors the `render:` block of a config (see config/schema.py)."""
 
     enabled: bool = True
     every: float | None = None  # simulated seconds between frames (None: the caller decides)

@@ -1,18 +1,11 @@
 """Checkpoints: the full solver state and the run loop's bookkeeping, written atomically.
 
-`<run>/checkpoint.npz` holds every Taichi field and numpy array of the solver (`SolverBase.state_items`:
-particle fields in their current order, neighbour lists, Verlet reference positions, PPE arrays, ...)
-and one pickled `meta` blob: the solver's plain values (t, step count, stats, loop schedule), the run
-loop's (next output, frame, snapshot and checkpoint times, dts so far, the metrics' observers), and how
-far the run folder's files had got (timeseries.csv bytes, frame count, snapshot steps).
-
-It is written to `checkpoint.npz.tmp`, flushed to disk, then renamed over the previous one: a reader
-(or a run killed mid-write) always finds one complete checkpoint. Fields are copied to the host one at
-a time, so a checkpoint costs the largest single field in host memory, not a second copy of the state.
-
-`taichi-sph resume RUN_DIR` (`load_resume`) reads it back, cuts the files back to the checkpoint
-(rows, frames and snapshots written after it are removed) and continues the loop: on the CPU with the
-same loop schedule the result is bit-identical to an uninterrupted run.
+`<run>/checkpoint.npz` holds every Taichi field and numpy array of the solver (`SolverBase.state_items`) and one
+pickled `meta` blob: the solver's plain values, the run loop's schedule and observers, and how far the run folder's
+files had got. It is written to `checkpoint.npz.tmp`, flushed, then renamed over the previous one, one field at a
+time (a checkpoint costs the largest field in host memory). Invariant: a reader always finds one complete
+checkpoint. `taichi-sph resume RUN_DIR` (`load_resume`) cuts the folder back to it and continues; on the CPU with the
+same loop schedule the result is bit-identical to an uninterrupted run (docs/notes/checkpoint.md).
 """
 
 from __future__ import annotations

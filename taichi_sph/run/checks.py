@@ -1,33 +1,11 @@
 """A-priori checks printed before a run and stored in summary.json `warnings`.
 
-Each check judges one thing that can be known before the first step. A check is `severe` when the
-set-up cannot give a meaningful result: `taichi-sph run` refuses it (exit 2, one line; `--force` runs
-anyway) and `taichi-sph stability` reports it as the reason it refused the case. The rest are warnings
-(merely inaccurate). Thresholds:
-
-- `mach`          WCSPH: Ma = U / c0 (expected speed over sound speed); density errors ~ Ma^2.
-                  Warning above 0.1 (errors > 1%); severe at >= 1: the fluid is softer than its own flow.
-- `cfl_number`    the adaptive step's Courant number `time.cfl` (ISPH: `isph.cfl` when set) on h. Warning
-                  above 0.4 (the usual 0.25 is exceeded: noisy pressure); severe above 1: a signal crosses
-                  more than h per step, outside the CFL condition, where an explicit update has no stability
-                  guarantee.
-- `cfl_dt`, `force_dt`, `viscous_dt`   a fixed `time.dt` against the limits at Courant number 0.25
-                  (h / (c0 + U), sqrt(h / |g|)) and 0.125 h^2 / nu. Warning above them; severe above
-                  4x (Courant number 1 on h, as for `cfl_number`; 2x the viscous limit: the explicit
-                  diffusion update's own bound 0.25 h^2 / nu).
-- `support`       neighbours per kernel support on the initial lattice. Warning below 4 / 12 / 30 (1D /
-                  2D / 3D: the Wendland C2 kernel sum of a full lattice is then > 1.5% off in 2D);
-                  severe below half of that (2D, hdx 0.6: 4 neighbours, kernel sum 57% off: density and
-                  pressure are the particle's own weight, not the fluid's).
-- `neighbour_capacity`  an explicit `particles.max_neighbors` below the lattice count within the list
-                  radius: every list is cut from the first step (the neighbour-overflow guard stops the
-                  run): severe.
-- `wall_layers`   wall thickness (layers x dx) against the kernel support: warning below the support
-                  (particles at the wall miss part of it); severe below half the support, where the
-                  Adami wall pressure comes from a sliver of the kernel and particles pass through.
-                  (A wall box outside the domain is a config error, refused by config.validate.)
-- `unbounded`     gravity along a non-periodic axis with no wall body and no reflecting faces: the fluid
-                  falls out of the domain (the run ends `unstable`, left_domain): severe.
+Each check judges one thing that can be known before the first step: `mach` (U / c0), `cfl_number` (the adaptive
+Courant number), `cfl_dt` / `force_dt` / `viscous_dt` (a fixed dt against its limits), `support` (neighbours per
+kernel support on the lattice), `neighbour_capacity`, `wall_layers` (wall thickness against the support) and
+`unbounded` (gravity with nothing to stop the fluid). A check is `severe` when the set-up cannot give a meaningful
+result: `taichi-sph run` refuses it (exit 2, one line; `--force` runs anyway) and `taichi-sph stability` reports it
+as the reason it refused the case; the rest are warnings. The thresholds and their reasons: docs/notes/checks.md.
 """
 
 from __future__ import annotations

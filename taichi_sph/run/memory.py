@@ -1,27 +1,11 @@
 """Pre-flight memory estimate: particle count and bytes a run will need, from the config alone.
 
-Nothing here allocates particles: fluid blocks and wall boxes are tensor-product lattices, so their
-counts are products of 1D axis counts (`scene.lattice.axis_points`, the same arithmetic the builder uses),
-and a sphere is counted row by row. The bytes follow what the solvers allocate:
-
-- per particle on the device (Taichi fields): x, v, acc (dim each), rho, p, mass, kind, id; a scratch
-  copy of every field the neighbour build permutes; the cell sort's five i32 arrays; the neighbour list
-  (`max_neighbors` i32); the Verlet reference positions (skin > 0); no-slip ghost velocities; WCSPH
-  continuity and delta-SPH rates; the shifting vector; ISPH's PPE arrays (role, rhs, diag, residual,
-  CG vectors, a coefficient and a column index per neighbour-list slot and, with `mgcg`, each
-  particle's coupling to the 3^dim - 1 cells around its own) and wall-face planes; the renderer's two
-  f32 vectors;
-- per cell: the cell-start and cell-count arrays (i32), and with `mgcg` its cell levels' stencils and
-  vectors (`multigrid_bytes`);
-- on the host: the numpy particle arrays the run keeps (float64), the lattice temporaries of the
-  largest body while particles are built (a wall box's lattice spans the whole tank it encloses),
-  the copies taken at output times (state, sort order, snapshot encoding) and, beside them, a
-  checkpoint's copy of its largest field (the neighbour list), or the particle-order diagnostics' grid
-  of spacing dx (particle_order.void_particles; bounded by the domain's nodes);
-- a fixed baseline (Python, numpy, Taichi and its LLVM compiler).
-
-`HOST_FACTOR` and `BASELINE_BYTES` were calibrated against the peak RSS of dam_break_2d and
-dam_break_3d runs at three sizes each (see README, "Memory pre-flight").
+Nothing here allocates particles: fluid blocks and wall boxes are tensor-product lattices, so their counts are
+products of 1D axis counts (`scene.lattice.axis_points`, the same arithmetic the builder uses), and a sphere is
+counted row by row. The bytes follow what the solvers allocate: per particle (Taichi fields, neighbour lists, PPE
+arrays), per cell (and the multigrid's cell levels), the host's numpy arrays, lattice temporaries and output copies,
+and a fixed baseline. `HOST_FACTOR` and `BASELINE_BYTES` are calibrated against the peak RSS of dam_break_2d and
+dam_break_3d runs (scripts/measure_memory.py). What is counted, item by item: docs/notes/memory.md.
 """
 
 from __future__ import annotations

@@ -1,12 +1,12 @@
 """The run folder: config.yaml, summary.json, timeseries.csv, NPZ/VTU snapshots, progress bar.
 
-Layout (the user-facing contract, see DESIGN.md):
+Layout (the user-facing contract, described in README.md):
 
     <run>/config.yaml          resolved config actually run
     <run>/summary.json         one JSON object, written atomically
     <run>/timeseries.csv       one row per output time
     <run>/snapshots/snap_0000123.npz, .vtu, snapshots.pvd (ParaView time collection)
-    <run>/frames/frame_00000.png, <run>/video.mp4 (written by render.py)
+    <run>/frames/frame_00000.png, <run>/video.mp4 (written by render/video.py)
 
 Everything here is numpy-level and runs at output times only, never in the per-step hot loop
 (except `Progress.update`, which costs one clock read per call).

@@ -82,7 +82,7 @@ def failed_summary(cfg: Config, error: str, exit_code: int = 1) -> dict:
 
 
 def run_case(cfg: Config, out_dir: Path, *, render: bool = False, quiet: bool = True, log=None) -> dict:
-    """Run one scene with one solver into `out_dir` and return its summary (see DESIGN.md).
+    """Run one scene with one solver into `out_dir` and return its summary (the run folder: README.md).
 
     A run that raises comes back as {"status": "failed", "error": "..."}, written to the folder's
     summary.json, with the traceback in `out_dir/error.txt`: one broken case must not lose the others.

@@ -1,6 +1,6 @@
 """Metrics of the validation scenes: Taylor-Green vortex, start-up Poiseuille flow, lid-driven cavity.
 
-Imported by `metrics.make_metrics`; each class registers itself under its config `metrics[].type`.
+Rows of `METRICS` in validation/metrics/__init__.py map a config `metrics[].type` to these classes.
 Every metric reads fluid particles only (kind 0) and compares them with `reference.py`:
 
 - taylor_green: KE decay rate (least-squares slope of ln KE(t) over the output times) against

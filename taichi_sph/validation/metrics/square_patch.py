@@ -1,21 +1,12 @@
-"""Metric of the rotating square patch (configs/rotating_square_2d.yaml; Colagrossi 2005, Le Touze et al.
-2013): a square of fluid, side L, started in rigid rotation u = omega (y - y_c, x_c - x), no walls, no
-gravity. Its initial pressure is Colagrossi's series (reference.rotating_square_pressure), negative inside.
-The corners are not held by the pressure (grad p = 0 at a corner of the square) and run out into four arms.
+"""Metric of the rotating square patch (configs/rotating_square_2d.yaml; Colagrossi 2005, Le Touze et al. 2013).
 
-Shape measures, all invariant under a rotation of the patch (moments about the particles' centroid, as
-ratios to the initial lattice's, so that the discretisation of the edge cancels):
-- I(t) / I(0), I = <|x - x_c|^2>: the isotropic second moment (by the patch's 4-fold symmetry the inertia
-  tensor stays isotropic); I'' = 0.0521 omega^2 L^2 at t = 0 (reference.rotating_square_inertia_curvature).
-- Q(t) / Q(0), Q = <|x - x_c|^4>: weighs the corners, which carry the arms.
-- the lag of the square's orientation behind the rigid rotation: the orientation alpha (counter-clockwise)
-  from the 4-fold moment <(x + i y)^4> = |.| e^{i (pi + 4 alpha)} (pi for the axis-aligned square), unwrapped
-  from output to output; lag = alpha + omega t (clockwise rotation).
-The reference for these is a converged run of ours (data/reference/rotating_square_converged.csv; its header
-gives the runs, the resolution and how far two resolutions and the two solvers agree); no tabulated
-shape of the patch is available to us. Besides: the pressure at the centre against the series at the
-start (p(0, 0) = -0.1473 rho omega^2 L^2; Colagrossi 2005) and against the table over the run, and the
-angular momentum about the centroid, an invariant of the inviscid flow.
+A square of fluid, side L, in rigid rotation u = omega (y - y_c, x_c - x), no walls, no gravity, started from
+Colagrossi's series pressure (reference.rotating_square_pressure; p(0, 0) = -0.1473 rho omega^2 L^2). Shape
+measures, invariant under a rotation of the patch, as ratios to the initial lattice's: I = <|x - x_c|^2> and
+Q = <|x - x_c|^4> about the centroid, and the orientation lag behind the rigid rotation from the 4-fold moment
+<(x + i y)^4> = |.| e^{i (pi + 4 alpha)}, lag = alpha + omega t. Reference: a converged run of ours
+(data/reference/rotating_square_converged.csv; no tabulated shape is available); also the centre pressure against
+the series and the table, and the angular momentum about the centroid (an invariant). docs/validation.md.
 """
 
 from __future__ import annotations
