@@ -1,4 +1,4 @@
-"""The coarse levels of the cell multigrid (physics/multigrid.py) as boxes of cells: level 1 is the neighbour
+"""The coarse levels of the cell multigrid (linalg/multigrid/) as boxes of cells: level 1 is the neighbour
 search's cell grid, each next level merges 2^dim cells (an axis stops halving where a periodic axis would drop
 below 3 cells), down to at most COARSEST_CELLS cells."""
 
