@@ -3,7 +3,8 @@
 #  - system packages when missing: software Vulkan (mesa-vulkan-drivers) for the offscreen renderer,
 #    a virtual X server (xvfb, xauth) for the live window's tests (`taichi-sph view` under Xvfb),
 #    python3-venv for the virtual environment
-#  - a virtual environment in .venv with taichi-sph and its dependencies installed (editable)
+#  - a virtual environment in .venv with taichi-sph and its dependencies installed (editable), with the
+#    dev extra (ruff, the linter CI runs)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -35,5 +36,5 @@ if [ ! -x .venv/bin/python ]; then
   python3 -m venv .venv
 fi
 .venv/bin/python -m pip install -q --upgrade pip >/dev/null
-.venv/bin/python -m pip install -q -e . 
+.venv/bin/python -m pip install -q -e ".[dev]"
 echo "setup: ready (.venv/bin/taichi-sph)" >&2

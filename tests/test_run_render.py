@@ -14,6 +14,14 @@ from taichi_sph.cli.main import main
 CONFIGS = Path(__file__).resolve().parent.parent / "configs"
 
 
+def _rows(csv: Path) -> int:
+    """Data rows written so far (the header and a half-written last line not counted)."""
+    try:
+        return max(csv.read_text().count("\n") - 1, 0)
+    except OSError:
+        return 0
+
+
 def _frames(run: Path) -> list[Path]:
     return sorted((run / "frames").glob("frame_*.png"))
 
@@ -75,16 +83,20 @@ def test_render_command_rerenders_from_snapshots(tmp_path):
 
 
 def test_ctrl_c_writes_checkpoint_and_exits_130(tmp_path):
+    """SIGINT once the run has stepped (timeseries.csv holds 4 output rows, t >= 0.015 of t_end 1.0): waits on
+    that state, not on the clock (a fixed delay after the file appeared sent the signal before the first step
+    on a loaded machine)."""
     import signal
     import time
     run = tmp_path / "int"
     proc = subprocess.Popen([sys.executable, "-m", "taichi_sph", "run", str(CONFIGS / "dam_break_2d.yaml"), "--out",
                              str(run), "--no-render", "--quiet", "--set", "particles.dx=0.05"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    deadline = time.time() + 120
-    while not (run / "timeseries.csv").exists() and time.time() < deadline and proc.poll() is None:
-        time.sleep(0.2)
-    time.sleep(1.0)
+    deadline = time.monotonic() + 300  # a hung child fails the test instead of hanging it
+    while _rows(run / "timeseries.csv") < 4 and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert proc.poll() is None, f"the run ended before its 4th output row: {proc.communicate()[1][-300:]}"
+    assert _rows(run / "timeseries.csv") >= 4, "no 4th output row within 300 s"
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
