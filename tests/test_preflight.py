@@ -3,9 +3,9 @@ before anything is allocated or written: not enough memory, severe a-priori chec
 folder that already holds a run. Each bad input: exit 2, one line naming the problem, nothing written.
 """
 
+import resource
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -94,13 +94,15 @@ def test_available_memory_reads_meminfo():
 
 # ----------------------------------------------------------------------------- refusals: memory
 def test_dam_break_3d_at_half_a_millimetre_is_refused_in_under_two_seconds(tmp_path):
-    """The slip of one zero from the issue: refused from the config alone (no particle built)."""
-    t0 = time.perf_counter()
+    """The slip of one zero from the issue: refused from the config alone (no particle built). Timed in the
+    child's CPU seconds, which a loaded machine does not stretch (its wall time did: a flaky bound)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     proc = subprocess.run([sys.executable, "-m", "taichi_sph", "run", str(REPO / "configs" / "dam_break_3d.yaml"),
                            "--set", "particles.dx=0.0005", "--no-render"], capture_output=True, text=True,
                           cwd=tmp_path, timeout=60)
-    elapsed = time.perf_counter() - t0
-    assert proc.returncode == 2 and elapsed < 2.0, (elapsed, proc.stderr)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    assert proc.returncode == 2 and cpu < 2.0, (cpu, proc.stderr)
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1 and "Traceback" not in proc.stderr
     line = lines[0]

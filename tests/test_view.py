@@ -72,9 +72,9 @@ def _view(args: list[str], display: str | None, cwd: Path, timeout: float = 300)
 def test_no_display_is_one_line_and_exit_2(monkeypatch, capsys):
     monkeypatch.delenv("DISPLAY", raising=False)
     assert display_problem() == "DISPLAY is not set"
-    t0 = time.perf_counter()
+    t0 = time.process_time()  # CPU seconds: a loaded machine stretches wall time, not these
     assert main(["view", str(ROOT / "configs/dam_break_2d.yaml")]) == 2
-    assert time.perf_counter() - t0 < 5.0, "answers at once, before building the scene"
+    assert time.process_time() - t0 < 5.0, "answers at once, before building the scene"
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "taichi-sph run" in err and "xvfb-run" in err, err
     assert main(["view", str(ROOT / "configs/dam_break_2d.yaml"), "--out", "x"]) == 2
