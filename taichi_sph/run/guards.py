@@ -1,0 +1,45 @@
+"""The stability guards checked between step batches (`guards.check_every`): non-finite values, particles
+outside the domain, a full neighbour list, the density error beyond `guards.max_density_error`; and the
+particle to blame when one trips."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from taichi_sph.config.schema import Config
+from taichi_sph.scene.bodies import FLUID
+
+
+def guard_violation(cfg: Config, solver, stats: dict) -> dict | None:
+    """The first guard `stats` (solver.read_stats()) trips, as {criterion, detail}; None when all hold."""
+    g = cfg.guards
+    if stats["non_finite"] > 0:
+        return {"criterion": "non_finite", "detail": f"{stats['non_finite']} particles with NaN/inf state"}
+    if solver.nsearch.escaped() > 0:
+        return {"criterion": "left_domain", "detail": f"{solver.nsearch.escaped()} particles outside the domain"}
+    if solver.nsearch.overflowed():
+        return {"criterion": "neighbour_overflow",
+                "detail": f"a particle has {solver.nsearch.max_count()} neighbours > capacity {solver.max_neighbors} "
+                          "(particles collapsed together)"}
+    if stats["max_density_error"] > g.max_density_error:
+        return {"criterion": "density_error",
+                "detail": f"|rho - rho0|/rho0 = {stats['max_density_error']:.3g} > {g.max_density_error}"}
+    return None
+
+
+def culprit(cfg: Config, state: dict, criterion: str) -> int:
+    """The id of the fluid particle to blame for `criterion` (the fastest one when no rule names one)."""
+    f = np.where(state["kind"] == FLUID)[0]
+    x, v, rho = state["x"][f], state["v"][f], state["rho"][f]
+    if criterion == "non_finite":
+        bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(v).all(axis=1) & np.isfinite(rho))
+        idx = int(np.argmax(bad))
+    elif criterion == "left_domain":
+        lo, hi = np.asarray(cfg.domain.lo), np.asarray(cfg.domain.hi)
+        out = ((x < lo) | (x > hi)).any(axis=1)
+        idx = int(np.argmax(out))
+    elif criterion == "density_error":
+        idx = int(np.nanargmax(np.abs(rho - cfg.fluid.rho0)))
+    else:
+        idx = int(np.nanargmax(np.linalg.norm(np.nan_to_num(v), axis=1)))
+    return int(state["id"][f][idx])
