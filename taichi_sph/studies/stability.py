@@ -1,27 +1,15 @@
 """`taichi-sph stability`: stiff and extreme cases, each run briefly with each solver; a table of verdicts.
 
-Verdicts:
-- `refused`  an a-priori check is severe (checks.py): the run is pointless; the reason is the check's message.
-             The battery still runs it once, unchecked, and reports what happened (`if run anyway`),
-             so every refusal is backed by evidence.
-- `unstable` a guard fired during the run (non-finite state, particles leaving the domain, neighbour
-             overflow, density error beyond the guard), or the run "finished" with garbage: density
-             error beyond the guard at an output time, total energy grown by more than
-             ENERGY_GROWTH_LIMIT, fluid through the walls, or fluid particles collapsed onto each
-             other (closer than CLUMPING_LIMIT x dx: the tensile instability's pairs).
-- `stable`   none of that.
-- `failed`   the solver raised (a bug; traceback in the run folder's error.txt).
-
-Energy drift is the relative change of kinetic + potential energy (potential measured from the
-domain's lowest corner along gravity) between the first and the last snapshot; energy growth is
-the largest rise above the start. The stability map runs WCSPH on one small scene over a grid of
-CFL numbers and sound-speed ratios c0 / U and draws max density error as a heatmap.
+The battery (`BATTERY`: a scene under configs/stability/ with overrides, an expected verdict per solver) runs
+every case with every solver; each run gets a verdict (stability_verdicts.py) from its summary and the energy
+measurements of its snapshots (stability_energy.py). The stability map runs WCSPH on one small scene over a
+grid of CFL numbers and sound-speed ratios c0 / U and draws max density error as a heatmap. The report:
+stability_report.py.
 """
 
 from __future__ import annotations
 
 import json
-import math
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -33,15 +21,17 @@ from taichi_sph.config.loader import bundled_configs_dir, load_config
 from taichi_sph.config.schema import Config
 from taichi_sph.errors import EXIT_INTERRUPTED, EXIT_OK
 from taichi_sph.run.checks import severe_checks, time_step_limits
-from taichi_sph.run.output import RunFolder, load_snapshot, to_jsonable
-from taichi_sph.scene.bodies import FLUID
+from taichi_sph.run.output import to_jsonable
 from taichi_sph.studies.compare import derive_config
 from taichi_sph.studies.executor import Dispatch, Job, dispatch_from_args, run_case, run_cases
+from taichi_sph.studies.stability_energy import energy_change, min_spacing, run_measurements, total_energy
+from taichi_sph.studies.stability_report import stability_markdown
+from taichi_sph.studies.stability_verdicts import as_expected, classify
 from taichi_sph.studies.table import format_value, is_number
 
-ENERGY_GROWTH_LIMIT = 0.5      # E_max > 1.5 E_0 without an energy source: garbage
-WALL_PENETRATION_LIMIT = 0.01  # fraction of fluid particles found outside their wall box
-CLUMPING_LIMIT = 0.05          # two fluid particles closer than 5% of dx: collapsed (tensile instability, pairing)
+__all__ = ["BATTERY", "Case", "as_expected", "case_config", "classify", "cmd_stability", "energy_change", "min_spacing",
+           "run_one", "run_stability", "stability_markdown", "stability_map", "total_energy"]
+
 SNAPSHOTS_PER_RUN = 20
 
 
@@ -87,125 +77,6 @@ MAP_SCENE = "drop.yaml"
 MAP_CFL = (0.25, 0.5, 1.0, 2.0)
 MAP_RATIO = (2.5, 5.0, 10.0, 20.0)
 MAP_T_END = 0.3  # the impact happens at t = 0.23 s
-
-
-@dataclass
-class Verdict:
-    verdict: str                 # stable | unstable | refused | failed | interrupted
-    criterion: str | None = None
-    reason: str = ""
-
-
-# ----------------------------------------------------------------------------- measurements
-def potential_reference(cfg: Config) -> np.ndarray:
-    """The domain corner lowest along gravity: potential energy is measured from there (>= 0)."""
-    g = np.asarray(cfg.gravity_vector, dtype=np.float64)
-    lo, hi = np.asarray(cfg.domain.lo, float), np.asarray(cfg.domain.hi, float)
-    return np.where(g > 0, hi, lo)
-
-
-def total_energy(cfg: Config, state: dict) -> float:
-    """E = sum_fluid m (|v|^2 / 2 - g . (x - x_ref)) [J, per unit depth in 2D]."""
-    f = state["kind"] == FLUID
-    m = np.asarray(state["mass"][f], np.float64)
-    v = np.asarray(state["v"][f], np.float64)
-    x = np.asarray(state["x"][f], np.float64) - potential_reference(cfg)
-    g = np.asarray(cfg.gravity_vector, np.float64)
-    return float(np.sum(m * (0.5 * np.einsum("ij,ij->i", v, v) - x @ g)))
-
-
-def energy_change(energies) -> dict:
-    """Relative drift (E_end - E_0) / E_0 and growth (max E - E_0) / E_0; NaN when undefined."""
-    e = np.asarray(energies, dtype=np.float64)
-    if e.size < 2:
-        return {"energy_drift": float("nan"), "energy_growth": float("nan")}
-    if not np.all(np.isfinite(e)):
-        return {"energy_drift": float("inf"), "energy_growth": float("inf")}
-    scale = e[0] if e[0] > 0 else float(np.max(np.abs(e)))
-    if scale <= 0:
-        return {"energy_drift": 0.0, "energy_growth": 0.0}
-    return {"energy_drift": float((e[-1] - e[0]) / scale), "energy_growth": float((e.max() - e[0]) / scale)}
-
-
-def min_spacing(x: np.ndarray, chunk: int = 1024) -> float:
-    """Smallest distance between two particles (brute force in chunks; stability scenes are small)."""
-    x = np.asarray(x, dtype=np.float64)
-    n = len(x)
-    if n < 2 or not np.all(np.isfinite(x)):
-        return float("nan")
-    best = math.inf
-    for i in range(0, n, chunk):
-        d2 = np.sum((x[i:i + chunk, None, :] - x[None, :, :]) ** 2, axis=-1)
-        rows = np.arange(i, min(i + chunk, n))
-        d2[rows - i, rows] = np.inf
-        best = min(best, float(d2.min()))
-    return math.sqrt(best)
-
-
-def run_measurements(cfg: Config, run_dir: Path) -> dict:
-    """Energy drift/growth over the run's snapshots, and the final fluid spacing over dx."""
-    snaps = [load_snapshot(p) for p in RunFolder(run_dir).list_snapshots()]
-    if not snaps:
-        return {}
-    out = energy_change([total_energy(cfg, s) for s in snaps])
-    last = snaps[-1]
-    out["min_spacing_dx"] = min_spacing(last["x"][last["kind"] == FLUID]) / cfg.particles.dx
-    return out
-
-
-# ----------------------------------------------------------------------------- the verdict
-def classify(summary: dict | None, *, severe: list | tuple = (), guard: float = 0.2,
-             measurements: dict | None = None) -> Verdict:
-    """Turn a run's summary (and its energy measurements) into a verdict; `severe` holds the severe
-    a-priori checks (CheckResult or str), which refuse the case before anything ran."""
-    if severe:
-        codes = ",".join(getattr(c, "code", "check") for c in severe)
-        return Verdict("refused", codes, "; ".join(getattr(c, "message", str(c)) for c in severe))
-    if summary is None:
-        return Verdict("failed", None, "no summary")
-    status = summary.get("status")
-    if status == "failed":
-        return Verdict("failed", None, summary.get("error", ""))
-    if status == "interrupted":
-        return Verdict("interrupted", None, "interrupted by the user")
-    if status == "unstable":
-        inst = summary.get("instability", {})
-        t = inst.get("t")
-        return Verdict("unstable", inst.get("criterion"),
-                       f"{inst.get('detail', '')}" + (f" at t = {t:.4g} s" if is_number(t) else ""))
-    m = measurements or {}
-    rho_err = summary.get("max_density_error")
-    ke = summary.get("conservation", {}).get("kinetic_energy", 0.0)
-    if not is_number(rho_err) or (ke is not None and not is_number(ke)):
-        return Verdict("unstable", "non_finite", "the run finished with non-finite density or energy")
-    if rho_err > guard:
-        return Verdict("unstable", "density_error", f"finished, but max |rho - rho0|/rho0 = {rho_err:.3g} > guard {guard:g}")
-    growth = m.get("energy_growth")
-    if growth == math.inf:
-        return Verdict("unstable", "non_finite", "non-finite energy in a snapshot")
-    if is_number(growth) and growth > ENERGY_GROWTH_LIMIT:
-        return Verdict("unstable", "energy_growth",
-                       f"finished, but kinetic + potential energy grew by {growth:.0%} (> {ENERGY_GROWTH_LIMIT:.0%})")
-    crossings = summary.get("conservation", {}).get("wall_crossings") or 0
-    n_fluid = summary.get("n_fluid") or 0
-    if n_fluid and crossings > max(1, WALL_PENETRATION_LIMIT * n_fluid):
-        return Verdict("unstable", "wall_penetration", f"finished, but {crossings} of {n_fluid} fluid particles crossed a wall")
-    spacing = m.get("min_spacing_dx")
-    if is_number(spacing) and spacing < CLUMPING_LIMIT:
-        return Verdict("unstable", "particle_clumping",
-                       f"finished, but two fluid particles are {spacing:.2g} dx apart (< {CLUMPING_LIMIT:g} dx): collapsed pairs")
-    return Verdict("stable", None, "")
-
-
-def as_expected(verdict: str, expected: str) -> bool | None:
-    """Did the case come out as a sound solver should? None when there is no expectation."""
-    if verdict == "failed":
-        return False
-    if verdict == "interrupted" or expected == "either":
-        return None
-    if expected == "unstable":
-        return verdict in ("unstable", "refused")
-    return verdict == expected
 
 
 # ----------------------------------------------------------------------------- running cases
@@ -336,75 +207,6 @@ def stability_map(out_dir: Path, *, cfl_values=MAP_CFL, ratios=MAP_RATIO, scene:
     path = plot_stability_map(list(cfl_values), list(ratios), err, labels, out_dir / "stability_map.png", title,
                               unstable=bad)
     return {"scene": scene, "cfl": list(cfl_values), "c0_ratio": list(ratios), "cells": cells, "plot": path.name}
-
-
-# ----------------------------------------------------------------------------- report
-COLUMNS = (("case", "case"), ("solver", "solver"), ("verdict", "verdict"), ("criterion / reason", None),
-           ("max density error", "max_density_error"), ("energy drift", "energy_drift"),
-           ("energy growth", "energy_growth"), ("min spacing / dx", "min_spacing_dx"), ("steps", "steps"),
-           ("wall time [s]", "wall_time_s"), ("as expected", "as_expected"))
-
-
-def _why(row: dict) -> str:
-    parts = []
-    if row.get("criterion"):
-        parts.append(str(row["criterion"]))
-    if row.get("reason"):
-        parts.append(str(row["reason"]))
-    text = ": ".join(parts)
-    anyway = row.get("if_run_anyway")
-    if anyway:
-        text += f" [run anyway: {anyway['verdict']}" + (f", {anyway['criterion']}" if anyway.get("criterion") else "") + \
-                (f", max density error {format_value(anyway.get('max_density_error'))}" if anyway.get("max_density_error") is not None else "") + "]"
-    return text.replace("|", "\\|")  # a pipe inside a table cell
-
-
-def stability_markdown(result: dict) -> str:
-    lines = ["# Stability battery", "",
-             f"Runtime {result['runtime_s']:.0f} s. Verdicts: stable / unstable (guard or garbage criterion) / "
-             "refused (severe a-priori check; the case is still run once, unchecked, to show why).", ""]
-    lines += ["| " + " | ".join(c[0] for c in COLUMNS) + " |", "|---" * len(COLUMNS) + "|"]
-    for row in result["cases"]:
-        cells = []
-        for _, key in COLUMNS:
-            if key is None:
-                cells.append(_why(row))
-            elif key == "as_expected":
-                v = row.get(key)
-                cells.append("-" if v is None else ("yes" if v else f"**no** (expected {row['expected']})"))
-            else:
-                cells.append(format_value(row.get(key)))
-        lines.append("| " + " | ".join(cells) + " |")
-    lines += ["", "Cases:", ""]
-    seen = set()
-    for row in result["cases"]:
-        if row["case"] not in seen:
-            seen.add(row["case"])
-            lines.append(f"- `{row['case']}`: {row.get('note', '')}")
-    lines += ["", "Energy drift: (E_end - E_0) / E_0 of kinetic + potential energy over the snapshots (impacts and "
-              "viscosity dissipate, so negative drift is physical); growth above "
-              f"{ENERGY_GROWTH_LIMIT:.0%} marks a run unstable. Min spacing / dx: the closest pair of fluid particles "
-              "at the end (pairing / clumping shows as values well below 1)."]
-    m = result.get("map")
-    if m:
-        lines += ["", f"## Stability map ({m['scene']}, WCSPH)", "", f"![stability map]({m['plot']})", ""]
-        lines += ["| c0 / U \\ CFL | " + " | ".join(f"{c:g}" for c in m["cfl"]) + " |", "|---" * (len(m["cfl"]) + 1) + "|"]
-        for ratio in m["c0_ratio"]:
-            cells = []
-            for cfl in m["cfl"]:
-                cell = next((c for c in m["cells"] if c["cfl"] == cfl and c["c0_ratio"] == ratio), None)
-                if cell is None:
-                    cells.append("-")
-                    continue
-                if cell["verdict"] == "stable":
-                    text = f"stable ({format_value(cell.get('max_density_error'))})"
-                else:
-                    text = f"**{cell['criterion'] or cell['verdict']}** at t = {format_value(cell.get('t_reached'))} s"
-                cells.append(text + (" [refused]" if cell["flagged"] else ""))
-            lines.append(f"| {ratio:g} | " + " | ".join(cells) + " |")
-        lines += ["", "Cells: stable (max density error), or the criterion that fired and when; [refused]: a severe "
-                  "a-priori check would refuse this configuration in the battery (the map runs it anyway)."]
-    return "\n".join(lines) + "\n"
 
 
 def run_stability(out_dir: Path, *, cases=BATTERY, solvers=("wcsph", "isph"), extra_configs=(), extra_overrides=(),
