@@ -358,20 +358,31 @@ def test_group_pairs_are_left_out():
 # ---------------------------------------------------------------- access 'cells': the walk over the sorted cells
 
 
-@ti.kernel
-def _walk(ns: ti.template(), x: ti.template(), found: ti.template(), count: ti.template()):
-    """What a pair loop sees with access 'cells': the candidates within the list radius, in walk order."""
-    for a in range(ns.n):
-        c = 0
-        for s in range(ns.slots()):
-            k0, k1 = ns.span(a, s)
-            for k in range(k0, k1):
-                b = ns.at(a, k)
-                if ns.listed(ns.pair_vector(x[a], x[b])):
-                    if c < found.shape[1]:
-                        found[a, c] = b
-                    c += 1
-        count[a] = c
+@ti.data_oriented
+class _Recorder:
+    """What a pair loop sees through `for_each_neighbor`: the neighbours it visits, in visit order."""
+
+    def __init__(self, ns: NeighborSearch, x, capacity: int = 128) -> None:
+        self.ns = ns
+        self.x = x
+        self.found = ti.field(ti.i32, (ns.n, capacity))
+        self.count = ti.field(ti.i32, ns.n)
+        self.bad_r = ti.field(ti.i32, ())  # visits whose r_ab is not pair_vector(x_a, x_b)
+
+    @ti.kernel
+    def walk(self):
+        for a in range(self.ns.n):
+            visit = ti.Struct(c=0, xa=self.x[a])
+            self.ns.for_each_neighbor(a, self.x, self.record, visit)
+            self.count[a] = visit.c
+
+    @ti.func
+    def record(self, a, b, r_ab, visit: ti.template()):
+        if visit.c < self.found.shape[1]:
+            self.found[a, visit.c] = b
+        if (r_ab - self.ns.pair_vector(visit.xa, self.x[b])).norm() > 0.0:
+            self.bad_r[None] += 1
+        visit.c += 1
 
 
 @pytest.mark.parametrize(
@@ -380,8 +391,9 @@ def _walk(ns: ti.template(), x: ti.template(), found: ti.template(), count: ti.t
      (2, (True, True)), (3, (False, True, False)), (3, (True, True, True))],
 )
 def test_cell_walk_visits_the_list_entries_in_list_order(dim, periodic):
-    """Every pair loop's sum is the same with access 'cells' as with 'lists': the walk visits exactly the
-    listed neighbours (self never, each once, across periodic faces too), in the lists' order."""
+    """Every pair loop's sum is the same with access 'cells' as with 'lists': `for_each_neighbor` visits
+    exactly the listed neighbours (self never, each once, across periodic faces too), in the lists' order,
+    with r_ab = pair_vector(x_a, x_b), in both accesses."""
     n, support = OPEN_CASES[dim]
     lo = np.array([-0.5, 0.0, 0.25][:dim])
     hi = lo + np.array([1.0, 0.93, 0.87][:dim])
@@ -392,15 +404,16 @@ def test_cell_walk_visits_the_list_entries_in_list_order(dim, periodic):
     lists.build(x, [])
     cells.build(x, [])  # same order: the sort of sorted particles is the identity
     np.testing.assert_array_equal(cells.order.to_numpy(), np.arange(n))
-    found = ti.field(ti.i32, (n, 128))
-    count = ti.field(ti.i32, n)
-    _walk(cells, x, found, count)
-    c_lists, c_cells = lists.count.to_numpy(), count.to_numpy()
-    np.testing.assert_array_equal(c_cells, c_lists)
+    c_lists, nb_lists = lists.count.to_numpy(), lists.neighbors.to_numpy()
     assert c_lists.mean() > 10  # the case has neighbours to find
-    nb_lists, nb_cells = lists.neighbors.to_numpy(), found.to_numpy()
-    for i in range(n):
-        np.testing.assert_array_equal(nb_cells[i, : c_cells[i]], nb_lists[i, : c_lists[i]])
+    for ns in (lists, cells):  # the one iterator, either access
+        rec = _Recorder(ns, x)
+        rec.walk()
+        c_seen, nb_seen = rec.count.to_numpy(), rec.found.to_numpy()
+        np.testing.assert_array_equal(c_seen, c_lists)
+        for i in range(n):
+            np.testing.assert_array_equal(nb_seen[i, : c_seen[i]], nb_lists[i, : c_lists[i]])
+        assert rec.bad_r[None] == 0
     assert not cells.overflowed() and cells.max_count() == 0
 
 

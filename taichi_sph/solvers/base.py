@@ -1,5 +1,7 @@
-"""What every solver shares: particles, kernel, neighbour search, wall extrapolation, reductions, dt."""
+"""What every solver shares: particles, kernel, neighbour search, wall extrapolation, reductions, dt.
 
+The kinematic wall condition (wall_condition.py) and the checkpoint state (state.py) are mixins of
+SolverBase; the CPU loop schedule is schedule.py."""
 
 import math
 
@@ -9,72 +11,19 @@ import taichi as ti
 from taichi_sph.config.schema import AUTO, Config
 from taichi_sph.physics.body_force import harmonic_central_force
 from taichi_sph.physics.eos import tait_density, tait_pressure
-from taichi_sph.physics.walls import adami_wall_pressure, adami_wall_velocity, kinematic_wall_condition
-from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays, tait_b, wall_face_planes
+from taichi_sph.physics.walls import adami_wall_pressure, adami_wall_velocity
+from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays, tait_b
 from taichi_sph.scene.lattice import lattice_kernel_sum, max_neighbors_for
 from taichi_sph.solvers.clock import DeviceClock
+from taichi_sph.solvers.state import CheckpointState
+from taichi_sph.solvers.wall_condition import KinematicWalls
 from taichi_sph.sph.features import Features
 from taichi_sph.sph.kernels import make_kernel
 from taichi_sph.sph.neighbors import NeighborSearch
 from taichi_sph.sph.particles import ParticleFields, np_float
 
 
-def _is_plain(value) -> bool:
-    """Numbers, strings, None and (nested) lists, tuples and dicts of them: safe to pickle and restore."""
-    if value is None or isinstance(value, (bool, int, float, str, np.generic)):
-        return True
-    if isinstance(value, (list, tuple)):
-        return all(_is_plain(v) for v in value)
-    if isinstance(value, dict):
-        return all(_is_plain(k) and _is_plain(v) for k, v in value.items())
-    return False
-
-
-def _is_project_object(value) -> bool:
-    """An instance of one of this project's classes that holds state (not a frozen config dataclass)."""
-    import dataclasses
-    module = type(value).__module__ or ""
-    return (module.startswith("taichi_sph") and hasattr(value, "__dict__") and not isinstance(value, type)
-            and not dataclasses.is_dataclass(value))
-
-
-class LoopSchedule:
-    """Whether a solver's step loops run on one thread: decided on the CPU by timing steps.
-
-    Each parallel loop costs a thread-pool round (~70 us on this project's 2-core VM, a few us on an
-    idle many-core CPU): on that VM a whole WCSPH step of PySPH's 3.8k-particle dam break ran ~30%
-    faster on one thread, dam_break_2d's 16.5k particles at h = 2 dx ~40% slower. The first steps run
-    one schedule, then the other, `warmup + probes` steps each (alternating step by step made both
-    look alike: each switch costs cache and thread wake-ups), and the faster median of the last
-    `probes` wins. Results do not depend on the choice: the loops concerned write per particle, and
-    reductions are max or integer counts. On a GPU the loops always run in parallel."""
-
-    def __init__(self, probes: int = 6, warmup: int = 3) -> None:
-        cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
-        self.serial: bool | None = None if cpu else False
-        self.probes = probes
-        self.warmup = warmup
-        self.samples: dict[bool, list[float]] = {True: [], False: []}
-
-    @property
-    def deciding(self) -> bool:
-        return self.serial is None
-
-    def next(self) -> bool:
-        """The schedule for the next step."""
-        if self.serial is not None:
-            return self.serial
-        return len(self.samples[True]) < self.warmup + self.probes
-
-    def record(self, serial: bool, seconds: float) -> None:
-        """Wall time of a step run with `serial` (only while deciding)."""
-        self.samples[serial].append(seconds)
-        if min(len(v) for v in self.samples.values()) >= self.warmup + self.probes:
-            median = {k: float(np.median(v[self.warmup:])) for k, v in self.samples.items()}
-            self.serial = median[True] < median[False]
-
-
-class SolverBase:
+class SolverBase(KinematicWalls, CheckpointState):
     """Common state and passes. Subclasses implement `prepare()` and `step() -> dt`.
 
     Not decorated with `ti.data_oriented` itself: the concrete solvers are, and that decorator routes
@@ -141,49 +90,6 @@ class SolverBase:
         # device-resident loop does not take is empty (solvers stepping from the host leave live at 1)
         self.clock = DeviceClock()
 
-    # -- kinematic wall condition -----------------------------------------------------------
-    def init_kinematic_walls(self, arrays: ParticleArrays, clearance_dx: float | None) -> None:
-        """Each wall particle's face (unit normal into the fluid, plane offset; permuted with it) for the
-        kinematic wall condition (physics/walls.py), kept `clearance_dx` dx off the faces; None: off."""
-        self.kinematic_walls = self.features.walls and clearance_dx is not None
-        if self.kinematic_walls:
-            P = self.particles
-            self.wall_clearance = clearance_dx * self.dx
-            normal, offset = wall_face_planes(self.cfg, arrays.x, arrays.kind)
-            self.wall_normal = P.add_vector(persistent=True)
-            self.wall_offset = P.add_scalar(persistent=True)
-            self.wall_normal.from_numpy(normal.astype(np_float()))
-            self.wall_offset.from_numpy(offset.astype(np_float()))
-            self.wall_cuts = ti.field(ti.i32, shape=())  # particle-steps the condition cut (over the run)
-
-    @ti.func
-    def kinematic_wall_cut(self, a, v, dt):
-        """v of fluid particle a after the kinematic condition of each wall neighbour's face (only faces
-        it is on the fluid side of, or at most dx/2 past); returns (v, 1 if some face cut it)."""
-        P = self.particles
-        NS = self.nsearch
-        xa = P.x[a]
-        out = v
-        cut = 0
-        for s in range(NS.slots()):
-            k0, k1 = NS.span(a, s)
-            for k in range(k0, k1):
-                b = NS.at(a, k)
-                if P.kind[b] == WALL and NS.listed(NS.pair_vector(xa, P.x[b])):
-                    distance = xa.dot(self.wall_normal[b]) - self.wall_offset[b]
-                    if distance > -0.5 * self.dx:
-                        w, c = kinematic_wall_condition(out, self.wall_normal[b], distance, self.wall_clearance, dt)
-                        out = w
-                        cut = ti.max(cut, c)
-        return out, cut
-
-    def kinematic_walls_summary(self) -> dict:
-        """summary.json `kinematic_walls`: the clearance and how often the condition acted."""
-        if not getattr(self, "kinematic_walls", False):
-            return {}
-        return {"kinematic_walls": {"clearance_dx": self.wall_clearance / self.dx,
-                                    "particle_steps_cut": int(self.wall_cuts[None])}}
-
     # -- neighbours ---------------------------------------------------------------------
     def rebuild_neighbors(self, serial: bool = False) -> None:
         """Cell sort, reorder every persistent field, rebuild neighbour lists (`serial`: on one thread)."""
@@ -234,17 +140,14 @@ class SolverBase:
         ti.loop_config(serialize=serial)
         for a in range(self.live_n()):
             if P.kind[a] == FLUID:
-                xa = P.x[a]
                 rho = P.mass[a] * self.kernel.w0
-                for s in range(NS.slots()):
-                    k0, k1 = NS.span(a, s)
-                    for k in range(k0, k1):
-                        b = NS.at(a, k)
-                        r_ab = NS.pair_vector(xa, P.x[b])
-                        if NS.listed(r_ab):  # compiled out with lists
-                            r = r_ab.norm()
-                            rho += P.mass[b] * self.kernel.w(r)
+                NS.for_each_neighbor(a, P.x, self.summation_density_pair, rho)
                 P.rho[a] = rho * self.inv_lattice_sum
+
+    @ti.func
+    def summation_density_pair(self, a, b, r_ab, rho: ti.template()):
+        """rho += m_b W_ab."""
+        rho += self.particles.mass[b] * self.kernel.w(r_ab.norm())
 
     @ti.func
     def tait(self, rho):
@@ -282,23 +185,10 @@ class SolverBase:
         for a in range(self.live_n()):
             if P.kind[a] == WALL:
                 xa = P.x[a]
-                sum_w = 0.0
-                sum_pw = 0.0
-                sum_rho_rw = ti.Vector.zero(float, self.dim)
-                sum_vw = ti.Vector.zero(float, self.dim)
-                for s in range(NS.slots()):
-                    k0, k1 = NS.span(a, s)
-                    for k in range(k0, k1):
-                        b = NS.at(a, k)
-                        r_ab = NS.pair_vector(xa, P.x[b])
-                        if NS.listed(r_ab):  # compiled out with lists
-                            if P.kind[b] == FLUID:
-                                w = self.kernel.w(r_ab.norm())
-                                sum_w += w
-                                sum_pw += P.p[b] * w
-                                sum_rho_rw += P.rho[b] * r_ab * w
-                                if ti.static(self.features.no_slip):
-                                    sum_vw += P.v[b] * w
+                sums = ti.Struct(w=0.0, pw=0.0, rho_rw=ti.Vector.zero(float, self.dim),
+                                 vw=ti.Vector.zero(float, self.dim))
+                NS.for_each_neighbor(a, P.x, self.adami_wall_pair, sums)
+                sum_w, sum_pw, sum_rho_rw, sum_vw = sums.w, sums.pw, sums.rho_rw, sums.vw
                 body_acc = self.body_force(xa)  # (g - a_wall); walls do not accelerate
                 # walls push, never pull: a negative extrapolated pressure (wall above a free surface)
                 # would glue fluid to the wall
@@ -311,6 +201,18 @@ class SolverBase:
                 P.mass[a] = rho_w * self.lattice_volume  # a wall particle stands for dx^dim of ghost fluid
                 if ti.static(self.features.no_slip):
                     self.v_ghost[a] = adami_wall_velocity(P.v[a], sum_vw, sum_w)
+
+    @ti.func
+    def adami_wall_pair(self, a, b, r_ab, sums: ti.template()):
+        """A fluid neighbour's share of the Adami sums: W, p W, rho r W (r = x_w - x_f) and (no-slip) v W."""
+        P = self.particles
+        if P.kind[b] == FLUID:
+            w = self.kernel.w(r_ab.norm())
+            sums.w += w
+            sums.pw += P.p[b] * w
+            sums.rho_rw += P.rho[b] * r_ab * w
+            if ti.static(self.features.no_slip):
+                sums.vw += P.v[b] * w
 
     @ti.func
     def stats_pass(self):
@@ -443,50 +345,3 @@ class SolverBase:
 
     def host_state(self) -> dict[str, np.ndarray]:
         return self.particles.to_numpy()
-
-    # -- checkpoints ------------------------------------------------------------------------------
-    def state_items(self) -> tuple[dict[str, ti.Field], dict[str, np.ndarray], dict[str, dict]]:
-        """Everything a bit-identical restart needs, found generically: every Taichi field, numpy array
-        and plain Python value (numbers, strings, lists, dicts) held by the solver or by a project object
-        it holds (particles, neighbour search, PPE, shifting, loop schedule), current particle order and
-        neighbour lists included. Returns (fields, arrays, plain values per owner), keyed `owner.attr`."""
-        fields: dict[str, ti.Field] = {}
-        arrays: dict[str, np.ndarray] = {}
-        plain: dict[str, dict] = {}
-        seen: set[int] = set()
-
-        def walk(obj, prefix: str) -> None:
-            seen.add(id(obj))
-            values = {}
-            for name, value in vars(obj).items():
-                key = f"{prefix}.{name}"
-                if isinstance(value, ti.Field):
-                    fields[key] = value
-                elif isinstance(value, np.ndarray):
-                    arrays[key] = value
-                elif _is_plain(value):
-                    values[name] = value
-                elif _is_project_object(value) and id(value) not in seen:
-                    walk(value, key)
-            plain[prefix] = values
-
-        walk(self, "solver")
-        return fields, arrays, plain
-
-    def restore_state(self, fields: dict[str, np.ndarray], plain: dict[str, dict]) -> None:
-        """Put back what `state_items` saved (fields and numpy arrays by key, plain values by owner)."""
-        own_fields, own_arrays, own_plain = self.state_items()
-        missing = (set(own_fields) | set(own_arrays)) - set(fields)
-        if missing:
-            raise ValueError(f"checkpoint lacks {sorted(missing)[:3]}: written by another solver or version")
-        for key, f in own_fields.items():
-            f.from_numpy(fields[key])
-        for key, a in own_arrays.items():
-            a[...] = fields[key]
-        owners = {"solver": self}
-        for prefix in sorted(own_plain, key=len):
-            if prefix != "solver":
-                parent, name = prefix.rsplit(".", 1)
-                owners[prefix] = getattr(owners[parent], name)
-            for name, value in plain.get(prefix, {}).items():
-                setattr(owners[prefix], name, value)

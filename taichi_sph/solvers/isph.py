@@ -176,33 +176,19 @@ class ISPHSolver(SolverBase):
     def detect_free_surface(self):
         """Summation density, free-surface role and Dirichlet pressure (see the module doc)."""
         P = self.particles
-        NS = self.nsearch
         E = self.ppe
         E.scalars[N_DIRICHLET] = 0.0
         for a in range(self.n):
             role = NOT_IN_PPE
             if P.kind[a] == FLUID:
                 xa = P.x[a]
-                rho = P.mass[a] * self.kernel.w0
-                grad_c = ti.Vector.zero(float, self.dim)
-                moment = ti.Matrix.zero(float, self.dim, self.dim)
-                grad_w_moment = ti.Matrix.zero(float, self.dim, self.dim)
-                acc_sum = P.mass[a] * self.kernel.w0 * P.acc[a]
-                w_fluid = P.mass[a] * self.kernel.w0
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    r_ab = NS.pair_vector(xa, P.x[b])
-                    r = r_ab.norm()
-                    w = self.kernel.w(r)
-                    rho += P.mass[b] * w
-                    grad_w = self.kernel.grad_w(r_ab, r)
-                    grad_c += P.mass[b] / self.rho0 * grad_w
-                    if ti.static(self.one_sided):
-                        moment -= P.mass[b] / self.rho0 * r_ab.outer_product(grad_w)
-                        grad_w_moment += P.mass[b] / self.rho0 * grad_w.outer_product(grad_w)
-                    if P.kind[b] == FLUID:
-                        acc_sum += P.mass[b] * w * P.acc[b]
-                        w_fluid += P.mass[b] * w
+                sums = ti.Struct(rho=P.mass[a] * self.kernel.w0, grad_c=ti.Vector.zero(float, self.dim),
+                                 moment=ti.Matrix.zero(float, self.dim, self.dim),
+                                 grad_w_moment=ti.Matrix.zero(float, self.dim, self.dim),
+                                 acc_sum=P.mass[a] * self.kernel.w0 * P.acc[a], w_fluid=P.mass[a] * self.kernel.w0)
+                self.nsearch.for_each_neighbor(a, P.x, self.free_surface_pair, sums)
+                rho, grad_c, moment, grad_w_moment = sums.rho, sums.grad_c, sums.moment, sums.grad_w_moment
+                acc_sum, w_fluid = sums.acc_sum, sums.w_fluid
                 # last step's acceleration, Shepard-averaged over the fluid neighbours: one particle's
                 # spike (a contact line, a near-singular gradient) must not become its own Dirichlet
                 # pressure, which spikes its next acceleration
@@ -211,14 +197,9 @@ class ISPHSolver(SolverBase):
                 self.rho_summation[a] = rho
                 surface = rho < self.surface_threshold * self.rho0
                 if not surface and rho < SURFACE_CANDIDATE * self.rho0:
-                    outward = -grad_c.normalized(1e-12)
-                    surface = True
-                    for k in range(NS.count[a]):
-                        b = NS.neighbors[a, k]
-                        r_ba = -NS.pair_vector(xa, P.x[b])
-                        dist = r_ba.norm()
-                        if P.kind[b] == FLUID and in_surface_cone(r_ba, dist, outward, self.support):
-                            surface = False
+                    cone = ti.Struct(outward=-grad_c.normalized(1e-12), surface=True)
+                    self.nsearch.for_each_neighbor(a, P.x, self.surface_cone_pair, cone)
+                    surface = cone.surface
                     if ti.static(self.one_sided):
                         if not surface and ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT:
                             surface = projection_self_ratio(grad_c, moment, grad_w_moment,
@@ -235,23 +216,50 @@ class ISPHSolver(SolverBase):
                 P.rho[a] = rho
             E.role[a] = role
 
+    @ti.func
+    def free_surface_pair(self, a, b, r_ab, sums: ti.template()):
+        """Pair (a, b)'s share of the summation density, grad C, the moments of the self ratio and the
+        Shepard average of last step's fluid acceleration."""
+        P = self.particles
+        r = r_ab.norm()
+        w = self.kernel.w(r)
+        sums.rho += P.mass[b] * w
+        grad_w = self.kernel.grad_w(r_ab, r)
+        sums.grad_c += P.mass[b] / self.rho0 * grad_w
+        if ti.static(self.one_sided):
+            sums.moment -= P.mass[b] / self.rho0 * r_ab.outer_product(grad_w)
+            sums.grad_w_moment += P.mass[b] / self.rho0 * grad_w.outer_product(grad_w)
+        if P.kind[b] == FLUID:
+            sums.acc_sum += P.mass[b] * w * P.acc[b]
+            sums.w_fluid += P.mass[b] * w
+
+    @ti.func
+    def surface_cone_pair(self, a, b, r_ab, cone: ti.template()):
+        """A fluid neighbour in the scan cone around a's outward normal: a is not at the free surface."""
+        r_ba = -r_ab
+        dist = r_ba.norm()
+        if self.particles.kind[b] == FLUID and in_surface_cone(r_ba, dist, cone.outward, self.support):
+            cone.surface = False
+
     @ti.kernel
     def floor_surface_band_density(self):
         """rho_a = max(rho_a, rho0) at the fluid particles with a free-surface (Dirichlet) neighbour: the floor the
         PPE assembly applies every step (a support the free surface cuts off is not expansion), here for the state
         before the first step, so that the density written at t = 0 follows the rule of every later output."""
         P = self.particles
-        NS = self.nsearch
         E = self.ppe
         for a in range(self.n):
             if P.kind[a] == FLUID and E.role[a] == UNKNOWN:
-                near_surface = False
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    if P.kind[b] == FLUID and E.role[b] == DIRICHLET:
-                        near_surface = True
-                if near_surface:
+                band = ti.Struct(near_surface=False)
+                self.nsearch.for_each_neighbor(a, P.x, self.surface_neighbor_pair, band)
+                if band.near_surface:
                     P.rho[a] = ti.max(P.rho[a], self.rho0)
+
+    @ti.func
+    def surface_neighbor_pair(self, a, b, r_ab, band: ti.template()):
+        """band.near_surface: b is a free-surface (Dirichlet) fluid particle."""
+        if self.particles.kind[b] == FLUID and self.ppe.role[b] == DIRICHLET:
+            band.near_surface = True
 
     # -- 2. predictor -----------------------------------------------------------------------
     @ti.kernel
@@ -260,31 +268,15 @@ class ISPHSolver(SolverBase):
         correction adds the pressure part. Walls enter as in WCSPH: ghost velocity when no-slip.
         With `isph.step_force: explicit` also max |a*| (explicit_acc, the next step's force limit)."""
         P = self.particles
-        NS = self.nsearch
         if ti.static(self.explicit_step_force):
             self.explicit_acc[None] = 0.0  # (a serial task before the loop: no host write a step)
         for a in range(self.n):
             if P.kind[a] == FLUID:
-                xa, va = P.x[a], P.v[a]
-                acc = self.body_force(xa)
+                xa = P.x[a]
+                sums = ti.Struct(va=P.v[a], acc=self.body_force(xa))
                 if ti.static(self.features.laminar_viscosity or self.features.artificial_viscosity):
-                    for k in range(NS.count[a]):
-                        b = NS.neighbors[a, k]
-                        r_ab = NS.pair_vector(xa, P.x[b])
-                        r2 = r_ab.dot(r_ab)
-                        grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
-                        is_fluid_b = P.kind[b] == FLUID
-                        v_ab = va - P.v[b]
-                        if ti.static(self.features.no_slip):
-                            if not is_fluid_b:
-                                v_ab = va - self.v_ghost[b]
-                        if ti.static(self.features.artificial_viscosity):
-                            acc += monaghan_viscosity(P.mass[b], v_ab, r_ab, r2, self.h, self.c0, self.rho0, self.alpha,
-                                                      self.beta_av, grad_w)
-                        if ti.static(self.features.laminar_viscosity):
-                            if ti.static(self.features.no_slip) or is_fluid_b:
-                                acc += morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,
-                                                                self.eta2, grad_w)
+                    self.nsearch.for_each_neighbor(a, P.x, self.viscosity_pair, sums)
+                acc = sums.acc
                 P.acc[a] = acc
                 if ti.static(self.explicit_step_force):
                     ti.atomic_max(self.explicit_acc[None], acc.norm())
@@ -292,51 +284,45 @@ class ISPHSolver(SolverBase):
             if P.kind[a] == FLUID:
                 P.v[a] += dt * P.acc[a]
 
+    @ti.func
+    def viscosity_pair(self, a, b, r_ab, sums: ti.template()):
+        """The predictor's viscous terms of pair (a, b): Monaghan artificial, Morris laminar (rho = rho0)."""
+        P = self.particles
+        r2 = r_ab.dot(r_ab)
+        grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
+        is_fluid_b = P.kind[b] == FLUID
+        v_ab = sums.va - P.v[b]
+        if ti.static(self.features.no_slip):
+            if not is_fluid_b:
+                v_ab = sums.va - self.v_ghost[b]
+        if ti.static(self.features.artificial_viscosity):
+            sums.acc += monaghan_viscosity(P.mass[b], v_ab, r_ab, r2, self.h, self.c0, self.rho0, self.alpha,
+                                           self.beta_av, grad_w)
+        if ti.static(self.features.laminar_viscosity):
+            if ti.static(self.features.no_slip) or is_fluid_b:
+                sums.acc += morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,
+                                                     self.eta2, grad_w)
+
     # -- 3. the linear system -----------------------------------------------------------------
     @ti.kernel
     def assemble_ppe(self, dt: float, dt_relax: float):
         """Coefficients, diagonal and right side of the unknown particles' rows (see the module doc)."""
         P = self.particles
-        NS = self.nsearch
         E = self.ppe
         for s in ti.static((BB, SUM_B, N_UNKNOWN)):
             E.scalars[s] = 0.0
         E.rows.plan(E.role, UNKNOWN)
         for a in range(self.n):
             if E.role[a] == UNKNOWN:
-                xa, va = P.x[a], P.v[a]
+                xa = P.x[a]
                 vol_a = P.mass[a] / self.rho0
-                body = self.body_force(xa)
-                div_v = 0.0
-                diag = 0.0
-                diag_dirichlet = 0.0
-                rhs = 0.0
-                moment = ti.Vector.zero(float, self.dim)
-                near_surface = False
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    r_ab = NS.pair_vector(xa, P.x[b])
-                    r2 = r_ab.dot(r_ab)
-                    grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
-                    k_ab = self.lap_norm * vol_a * shao_lo_laplacian_weight(P.mass[b], self.rho0, self.rho0, r_ab, r2,
-                                                                            self.eta2, grad_w)
-                    c_ab = 0.0
-                    v_b = P.v[b]
-                    if P.kind[b] == WALL:
-                        v_b += dt * body
-                        rhs -= k_ab * neumann_wall_pressure_difference(self.rho0, body, r_ab)
-                    elif E.role[b] == UNKNOWN:
-                        c_ab = k_ab
-                        diag += k_ab
-                    else:
-                        near_surface = True
-                        diag += k_ab
-                        diag_dirichlet += k_ab
-                        rhs += k_ab * P.p[b]
-                    E.rows.set(a, k, b, c_ab)
-                    moment += k_ab * r_ab
-                    div_v += velocity_divergence_term(P.mass[b] / self.rho0, va - v_b, grad_w)
-                div_v *= self.grad_norm
+                row = ti.Struct(va=P.v[a], vol_a=vol_a, body=self.body_force(xa), dt=dt, k=0, div_v=0.0, diag=0.0,
+                                diag_dirichlet=0.0, rhs=0.0, moment=ti.Vector.zero(float, self.dim),
+                                near_surface=False)
+                self.nsearch.for_each_neighbor(a, P.x, self.ppe_row_pair, row)
+                diag, diag_dirichlet, rhs, moment = row.diag, row.diag_dirichlet, row.rhs, row.moment
+                near_surface = row.near_surface
+                div_v = row.div_v * self.grad_norm
                 rho = self.rho_summation[a]
                 if near_surface:
                     # sum over the cut-off support of K (p_a - p_m), p continued linearly with gradient
@@ -356,6 +342,35 @@ class ISPHSolver(SolverBase):
                 else:  # no fluid neighbour, so no other row refers to it: keep its pressure
                     E.role[a] = DIRICHLET
         E.sum_rhs()
+
+    @ti.func
+    def ppe_row_pair(self, a, b, r_ab, row: ti.template()):
+        """Neighbour b (the row's k-th entry) in a's PPE row: the Shao & Lo coefficient K_ab to the matrix
+        (unknown b), to the diagonal and right side (Dirichlet b) or as the Neumann wall difference (wall b);
+        and its share of div(v*) and of the first moment sum_b K_ab r_ab."""
+        P = self.particles
+        E = self.ppe
+        r2 = r_ab.dot(r_ab)
+        grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
+        k_ab = self.lap_norm * row.vol_a * shao_lo_laplacian_weight(P.mass[b], self.rho0, self.rho0, r_ab, r2,
+                                                                    self.eta2, grad_w)
+        c_ab = 0.0
+        v_b = P.v[b]
+        if P.kind[b] == WALL:
+            v_b += row.dt * row.body
+            row.rhs -= k_ab * neumann_wall_pressure_difference(self.rho0, row.body, r_ab)
+        elif E.role[b] == UNKNOWN:
+            c_ab = k_ab
+            row.diag += k_ab
+        else:
+            row.near_surface = True
+            row.diag += k_ab
+            row.diag_dirichlet += k_ab
+            row.rhs += k_ab * P.p[b]
+        E.rows.set(a, row.k, b, c_ab)
+        row.k += 1
+        row.moment += k_ab * r_ab
+        row.div_v += velocity_divergence_term(P.mass[b] / self.rho0, row.va - v_b, grad_w)
 
     # -- 5. walls and correction ---------------------------------------------------------------
     @ti.kernel
@@ -387,20 +402,12 @@ class ISPHSolver(SolverBase):
         else holds it (after the dam-break impact one run in two left a film particle 0.39 dx inside the
         back wall). Pressure keeps the bulk dx/2 off; `wall_cuts` counts the particles it had to stop."""
         P = self.particles
-        NS = self.nsearch
         for a in range(self.n):
             if P.kind[a] == FLUID:
-                xa, p_a = P.x[a], P.p[a]
-                sum_dp = ti.Vector.zero(float, self.dim)
-                moment = ti.Matrix.zero(float, self.dim, self.dim)
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    if P.kind[b] == FLUID or P.p[b] > self.p_background:
-                        r_ab = NS.pair_vector(xa, P.x[b])
-                        grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
-                        vol_b = P.mass[b] / self.rho0
-                        sum_dp += vol_b * (P.p[b] - p_a) * grad_w
-                        moment -= vol_b * r_ab.outer_product(grad_w)
+                sums = ti.Struct(p_a=P.p[a], sum_dp=ti.Vector.zero(float, self.dim),
+                                 moment=ti.Matrix.zero(float, self.dim, self.dim))
+                self.nsearch.for_each_neighbor(a, P.x, self.pressure_gradient_pair, sums)
+                sum_dp, moment = sums.sum_dp, sums.moment
                 grad_p = self.grad_norm * sum_dp
                 if ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT:
                     grad_p = moment.transpose().inverse() @ sum_dp
@@ -417,6 +424,16 @@ class ISPHSolver(SolverBase):
                 P.x[a] += dt * P.v[a]
                 if ti.static(self.features.reflecting):
                     self.reflect(a)
+
+    @ti.func
+    def pressure_gradient_pair(self, a, b, r_ab, sums: ti.template()):
+        """Pair (a, b)'s share of sum_b V_b (p_b - p_a) grad_a W_ab and of M_a, over fluid and wetted walls."""
+        P = self.particles
+        if P.kind[b] == FLUID or P.p[b] > self.p_background:
+            grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
+            vol_b = P.mass[b] / self.rho0
+            sums.sum_dp += vol_b * (P.p[b] - sums.p_a) * grad_w
+            sums.moment -= vol_b * r_ab.outer_product(grad_w)
 
     # -- one step -------------------------------------------------------------------------------------
     def prepare(self) -> None:

@@ -26,33 +26,14 @@ The speed U (`shifting.model`):
 import numpy as np
 import taichi as ti
 
+from taichi_sph.physics.shifting import (
+    lind_concentration_gradient_term,
+    no_outward_part,
+    shifting_diffusion,
+    tangential_part,
+)
 from taichi_sph.scene.bodies import FLUID
 from taichi_sph.scene.lattice import lattice_kernel_sum
-
-
-@ti.func
-def shifting_diffusion(coefficient: float, h: float, speed: float, dt: float) -> float:
-    """D = A h U dt: the diffusion coefficient of the shift (Skillen et al. 2013 with U = |v_a|)."""
-    return coefficient * h * speed * dt
-
-
-@ti.func
-def lind_concentration_gradient_term(vol_b: float, w: float, w_dx: float, grad_w):
-    """V_b (1 + 0.2 (W_ab / W(dx))^4) grad_a W_ab: one pair of grad C with Lind et al.'s anti-pairing term."""
-    return vol_b * (1.0 + 0.2 * ti.pow(w / w_dx, 4.0)) * grad_w
-
-
-@ti.func
-def tangential_part(dr, normal):
-    """dr - (dr . n) n: the shift along a free surface of unit normal n."""
-    return dr - dr.dot(normal) * normal
-
-
-@ti.func
-def no_outward_part(dr, outward):
-    """dr without its component along `outward` when that is positive: a shift may go into the fluid or
-    along the surface, not out of it."""
-    return dr - ti.max(dr.dot(outward), 0.0) * outward
 
 
 @ti.data_oriented
@@ -85,17 +66,15 @@ class ParticleShifting:
         """sum_b V_b W_ab (a included) over this step's neighbour lists; 1 on a full lattice x lattice_sum."""
         S = self.solver
         P = S.particles
-        NS = S.nsearch
-        xa = P.x[a]
         ksum = P.mass[a] / P.rho[a] * S.kernel.w0
-        for s in range(NS.slots()):
-            k0, k1 = NS.span(a, s)
-            for k in range(k0, k1):
-                b = NS.at(a, k)
-                r_ab = NS.pair_vector(xa, P.x[b])
-                if NS.listed(r_ab):  # compiled out with lists
-                    ksum += P.mass[b] / P.rho[b] * S.kernel.w(r_ab.norm())
+        S.nsearch.for_each_neighbor(a, P.x, self.kernel_sum_pair, ksum)
         return ksum
+
+    @ti.func
+    def kernel_sum_pair(self, a, b, r_ab, ksum: ti.template()):
+        """ksum += V_b W_ab."""
+        P = self.solver.particles
+        ksum += P.mass[b] / P.rho[b] * self.solver.kernel.w(r_ab.norm())
 
     @ti.kernel
     def compute(self, dt: float, max_speed: float):
@@ -124,32 +103,14 @@ class ParticleShifting:
         """shift_a for every fluid particle (the pass a solver's own kernels call; run flag_surface_pass first)."""
         S = self.solver
         P = S.particles
-        NS = S.nsearch
         ti.loop_config(serialize=serial)
         for a in range(S.live_n()):
             self.shift[a] = ti.Vector.zero(float, S.dim)
             if P.kind[a] == FLUID:
-                xa = P.x[a]
-                grad_c = ti.Vector.zero(float, S.dim)
-                grad_sum = ti.Vector.zero(float, S.dim)
-                ksum = P.mass[a] / P.rho[a] * S.kernel.w0
-                band = 0
-                for s in range(NS.slots()):
-                    k0, k1 = NS.span(a, s)
-                    for k in range(k0, k1):
-                        b = NS.at(a, k)
-                        r_ab = NS.pair_vector(xa, P.x[b])
-                        if NS.listed(r_ab):  # compiled out with lists
-                            r = r_ab.norm()
-                            w = S.kernel.w(r)
-                            vol_b = P.mass[b] / P.rho[b]
-                            grad_w = S.kernel.grad_w(r_ab, r)
-                            ksum += vol_b * w
-                            grad_sum += vol_b * grad_w
-                            grad_c += lind_concentration_gradient_term(vol_b, w, self.w_dx, grad_w)
-                            if ti.static(self.global_speed):
-                                if P.kind[b] == FLUID and r < S.support:
-                                    band = ti.max(band, self.surface[b])
+                sums = ti.Struct(grad_c=ti.Vector.zero(float, S.dim), grad_sum=ti.Vector.zero(float, S.dim),
+                                 ksum=P.mass[a] / P.rho[a] * S.kernel.w0, band=0)
+                S.nsearch.for_each_neighbor(a, P.x, self.gradient_pair, sums)
+                grad_c, grad_sum, ksum, band = sums.grad_c, sums.grad_sum, sums.ksum, sums.band
                 if ti.static(self.keep_region):
                     self.surface_region[a] = ti.max(band, self.surface[a])
                 speed = P.v[a].norm()
@@ -168,6 +129,22 @@ class ParticleShifting:
                 if length > self.max_shift:
                     dr *= self.max_shift / length
                 self.shift[a] = dr
+
+    @ti.func
+    def gradient_pair(self, a, b, r_ab, sums: ti.template()):
+        """Pair (a, b)'s share of the kernel sum, sum_b V_b grad W, Lind's grad C and (sun) the surface band."""
+        S = self.solver
+        P = S.particles
+        r = r_ab.norm()
+        w = S.kernel.w(r)
+        vol_b = P.mass[b] / P.rho[b]
+        grad_w = S.kernel.grad_w(r_ab, r)
+        sums.ksum += vol_b * w
+        sums.grad_sum += vol_b * grad_w
+        sums.grad_c += lind_concentration_gradient_term(vol_b, w, self.w_dx, grad_w)
+        if ti.static(self.global_speed):
+            if P.kind[b] == FLUID and r < S.support:
+                sums.band = ti.max(sums.band, self.surface[b])
 
     @ti.func
     def move_pass(self, serial: ti.template()):

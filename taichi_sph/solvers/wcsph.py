@@ -27,8 +27,9 @@ from taichi_sph.physics.momentum import (
     symmetric_pressure_gradient,
 )
 from taichi_sph.scene.bodies import FLUID, ParticleArrays
-from taichi_sph.solvers.base import LoopSchedule, SolverBase
+from taichi_sph.solvers.base import SolverBase
 from taichi_sph.solvers.clock import DT_LIMITS, DeviceClock
+from taichi_sph.solvers.schedule import LoopSchedule
 from taichi_sph.solvers.shifting import ParticleShifting
 
 
@@ -91,77 +92,89 @@ class WCSPHSolver(SolverBase):
     def wcsph_forces_pass(self, serial: ti.template()):
         """acc_a from every neighbour (pressure, viscosities, body force) and the delta-SPH density diffusion."""
         P = self.particles
-        NS = self.nsearch
         ti.loop_config(serialize=serial)
         for a in range(self.live_n()):
             if P.kind[a] == FLUID:
-                xa, va, rho_a, p_a = P.x[a], P.v[a], P.rho[a], P.p[a]
-                acc = ti.Vector.zero(float, self.dim)
-                drho = 0.0
-                near_wall = 0
+                xa, p_a = P.x[a], P.p[a]
                 # tensile instability control: both pressure forms summed, one kept (compiled out without it)
-                acc_tension = ti.Vector.zero(float, self.dim)
-                acc_pressure = ti.Vector.zero(float, self.dim)
-                for s in range(NS.slots()):
-                    k0, k1 = NS.span(a, s)
-                    for k in range(k0, k1):
-                        b = NS.at(a, k)
-                        r_ab = NS.pair_vector(xa, P.x[b])
-                        if NS.listed(r_ab):  # compiled out with lists
-                            r2 = r_ab.dot(r_ab)
-                            r = ti.sqrt(r2)
-                            grad_w = self.kernel.grad_w(r_ab, r)
-                            m_b, rho_b = P.mass[b], P.rho[b]
-                            is_fluid_b = P.kind[b] == FLUID
-                            # branch-free: an `if` that sets a flag in this loop made the f32 pass 3x slower
-                            near_wall = ti.max(near_wall, ti.select(is_fluid_b, 0, 1))
-                            v_ab = va - P.v[b]
-                            if ti.static(self.features.tensile_instability_control):
-                                acc_tension += difference_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
-                                acc_pressure += symmetric_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
-                            else:
-                                acc += symmetric_pressure_gradient(m_b, p_a, rho_a, P.p[b], rho_b, grad_w)
-                            if ti.static(self.features.tensile_correction):
-                                # a wall particle is ghost fluid mirroring particle a: its artificial pressure is a's
-                                # (its Adami pressure is clamped at >= 0, so its own R would leave fluid in tension
-                                # pushed by its fluid neighbours toward the wall and not back)
-                                p_tc, rho_tc = P.p[b], rho_b
-                                if not is_fluid_b:
-                                    p_tc, rho_tc = p_a, rho_a
-                                acc += monaghan_tensile_correction(m_b, p_a, rho_a, p_tc, rho_tc, self.kernel.w(r), self.w_dx,
-                                                                   self.tc_epsilon, self.tc_epsilon_positive, self.tc_n,
-                                                                   grad_w)
-                            if ti.static(self.features.density_diffusion != "none"):
-                                if is_fluid_b:
-                                    drho_ab = rho_b - rho_a
-                                    if ti.static(self.features.density_diffusion == "fourtakas"):
-                                        drho_ab -= hydrostatic_density_difference(r_ab, self.gravity[None], self.rho0,
-                                                                                  self.B, self.gamma)
-                                    drho += molteni_diffusion(rho_a, rho_a + drho_ab, m_b / rho_b, r_ab, r2, self.eta2,
-                                                              self.delta_h_c0, grad_w)
-                            v_visc = v_ab
-                            if ti.static(self.features.no_slip and (self.features.laminar_viscosity or self.features.artificial_viscosity)):
-                                if not is_fluid_b:
-                                    v_visc = va - self.v_ghost[b]
-                            if ti.static(self.features.artificial_viscosity):
-                                acc += monaghan_viscosity(m_b, v_visc, r_ab, r2, self.h, self.c0, 0.5 * (rho_a + rho_b),
-                                                          self.alpha, self.beta, grad_w)
-                            if ti.static(self.features.laminar_viscosity):
-                                if ti.static(self.features.no_slip) or is_fluid_b:
-                                    acc += morris_laminar_viscosity(m_b, self.nu, rho_a, rho_b, v_visc, r_ab, r2, self.eta2,
-                                                                    grad_w)
+                sums = ti.Struct(va=P.v[a], rho_a=P.rho[a], p_a=p_a, acc=ti.Vector.zero(float, self.dim), drho=0.0,
+                                 near_wall=0, acc_tension=ti.Vector.zero(float, self.dim),
+                                 acc_pressure=ti.Vector.zero(float, self.dim))
+                self.nsearch.for_each_neighbor(a, P.x, self.force_pair, sums)
+                acc = sums.acc
                 if ti.static(self.features.tensile_instability_control):
                     # Sun et al. 2017: the difference form for p_a < 0 outside the free-surface region
                     in_tension = p_a < 0.0 and self.shifting.surface_region[a] == 0
-                    acc += ti.select(in_tension, acc_tension, acc_pressure)
+                    acc += ti.select(in_tension, sums.acc_tension, sums.acc_pressure)
                 if ti.static(self.features.gravity or self.features.central_force):
                     acc += self.body_force(xa)
                 P.acc[a] = acc
                 if ti.static(self.kinematic_walls):
-                    self.near_wall[a] = near_wall
+                    self.near_wall[a] = sums.near_wall
                 if ti.static(self.features.density_diffusion != "none"):
-                    self.drho_diffusion[a] = drho
+                    self.drho_diffusion[a] = sums.drho
                 self.accumulate_stats(a)
+
+    @ti.func
+    def force_pair(self, a, b, r_ab, sums: ti.template()):
+        """Pair (a, b)'s terms, as the features compile them in, in this order: pressure gradient, tensile
+        correction, delta-SPH diffusion (into sums.drho), artificial and laminar viscosity."""
+        P = self.particles
+        r2 = r_ab.dot(r_ab)
+        r = ti.sqrt(r2)
+        grad_w = self.kernel.grad_w(r_ab, r)
+        m_b, rho_b = P.mass[b], P.rho[b]
+        is_fluid_b = P.kind[b] == FLUID
+        # branch-free: an `if` that sets a flag in this loop made the f32 pass 3x slower
+        sums.near_wall = ti.max(sums.near_wall, ti.select(is_fluid_b, 0, 1))
+        v_ab = sums.va - P.v[b]
+        self.pressure_pair(b, m_b, rho_b, grad_w, sums)
+        if ti.static(self.features.tensile_correction):
+            self.tensile_correction_pair(b, m_b, rho_b, is_fluid_b, r, grad_w, sums)
+        if ti.static(self.features.density_diffusion != "none"):
+            if is_fluid_b:
+                self.diffusion_pair(r_ab, r2, m_b, rho_b, grad_w, sums)
+        v_visc = v_ab
+        if ti.static(self.features.no_slip and (self.features.laminar_viscosity or self.features.artificial_viscosity)):
+            if not is_fluid_b:
+                v_visc = sums.va - self.v_ghost[b]
+        if ti.static(self.features.artificial_viscosity):
+            sums.acc += monaghan_viscosity(m_b, v_visc, r_ab, r2, self.h, self.c0, 0.5 * (sums.rho_a + rho_b),
+                                           self.alpha, self.beta, grad_w)
+        if ti.static(self.features.laminar_viscosity):
+            if ti.static(self.features.no_slip) or is_fluid_b:
+                sums.acc += morris_laminar_viscosity(m_b, self.nu, sums.rho_a, rho_b, v_visc, r_ab, r2, self.eta2,
+                                                     grad_w)
+
+    @ti.func
+    def pressure_pair(self, b, m_b, rho_b, grad_w, sums: ti.template()):
+        """The symmetric pressure gradient, or (tensile instability control) both forms summed apart."""
+        p_b = self.particles.p[b]
+        if ti.static(self.features.tensile_instability_control):
+            sums.acc_tension += difference_pressure_gradient(m_b, sums.p_a, sums.rho_a, p_b, rho_b, grad_w)
+            sums.acc_pressure += symmetric_pressure_gradient(m_b, sums.p_a, sums.rho_a, p_b, rho_b, grad_w)
+        else:
+            sums.acc += symmetric_pressure_gradient(m_b, sums.p_a, sums.rho_a, p_b, rho_b, grad_w)
+
+    @ti.func
+    def tensile_correction_pair(self, b, m_b, rho_b, is_fluid_b, r, grad_w, sums: ti.template()):
+        """Monaghan's artificial pressure. A wall particle is ghost fluid mirroring particle a: its artificial
+        pressure is a's (its Adami pressure is clamped at >= 0, so its own R would leave fluid in tension
+        pushed by its fluid neighbours toward the wall and not back)."""
+        p_tc, rho_tc = self.particles.p[b], rho_b
+        if not is_fluid_b:
+            p_tc, rho_tc = sums.p_a, sums.rho_a
+        sums.acc += monaghan_tensile_correction(m_b, sums.p_a, sums.rho_a, p_tc, rho_tc, self.kernel.w(r), self.w_dx,
+                                                self.tc_epsilon, self.tc_epsilon_positive, self.tc_n, grad_w)
+
+    @ti.func
+    def diffusion_pair(self, r_ab, r2, m_b, rho_b, grad_w, sums: ti.template()):
+        """delta-SPH density diffusion (Molteni & Colagrossi; fourtakas: minus the hydrostatic difference)."""
+        drho_ab = rho_b - sums.rho_a
+        if ti.static(self.features.density_diffusion == "fourtakas"):
+            drho_ab -= hydrostatic_density_difference(r_ab, self.gravity[None], self.rho0, self.B, self.gamma)
+        sums.drho += molteni_diffusion(sums.rho_a, sums.rho_a + drho_ab, m_b / rho_b, r_ab, r2, self.eta2,
+                                       self.delta_h_c0, grad_w)
 
     @ti.func
     def continuity_pass(self, serial: ti.template()):
@@ -169,22 +182,19 @@ class WCSPHSolver(SolverBase):
         variable) drifts with the new velocity, so the scheme stays symplectic for sound waves. (The kick
         is its own loop: forming v + dt a here for every pair cost ~40% of this pass on PySPH's scene.)"""
         P = self.particles
-        NS = self.nsearch
         ti.loop_config(serialize=serial)
         for a in range(self.live_n()):
             if P.kind[a] == FLUID:
-                xa = P.x[a]
-                va = P.v[a]
-                drho = 0.0
-                for s in range(NS.slots()):
-                    k0, k1 = NS.span(a, s)
-                    for k in range(k0, k1):
-                        b = NS.at(a, k)
-                        r_ab = NS.pair_vector(xa, P.x[b])
-                        if NS.listed(r_ab):  # compiled out with lists
-                            r = r_ab.norm()
-                            drho += continuity_rate(P.mass[b], va - P.v[b], self.kernel.grad_w(r_ab, r))
-                self.drho[a] = drho
+                sums = ti.Struct(va=P.v[a], drho=0.0)
+                self.nsearch.for_each_neighbor(a, P.x, self.continuity_pair, sums)
+                self.drho[a] = sums.drho
+
+    @ti.func
+    def continuity_pair(self, a, b, r_ab, sums: ti.template()):
+        """drho += m_b v_ab . grad_a W_ab."""
+        P = self.particles
+        r = r_ab.norm()
+        sums.drho += continuity_rate(P.mass[b], sums.va - P.v[b], self.kernel.grad_w(r_ab, r))
 
     @ti.func
     def kick_pass(self, dt: float, dt_drift: float, guard: ti.template(), serial: ti.template()):

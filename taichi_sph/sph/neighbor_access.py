@@ -1,18 +1,16 @@
-"""How pair loops reach a particle's neighbours: stored Verlet lists or a walk over the sorted cells.
+"""How pair loops reach a particle's neighbours: one iterator over stored Verlet lists or the sorted cells.
 
-Every pair loop in the solvers reads
+Every pair loop in the package is
 
-    for s in range(NS.slots()):
-        k0, k1 = NS.span(a, s)
-        for k in range(k0, k1):
-            b = NS.at(a, k)
-            r_ab = NS.pair_vector(x_a, x_b)
-            if NS.listed(r_ab):   # compiled out with lists
-                ...
+    NS.for_each_neighbor(a, P.x, self.some_pair_term, acc)
+
+with a pair term `@ti.func def some_pair_term(self, a, b, r_ab, acc: ti.template())` that adds pair
+(a, b)'s share to `acc` (a local scalar, vector or ti.Struct, passed by reference; Taichi inlines both
+functions, so the loop compiles as if written out). r_ab = x_a - x_b (minimum image).
 
 `particles.neighbor_access` picks the access at compile time; both compile from the same loop bodies
 and visit the same neighbours in the same order (tests/test_neighbors.py):
-- 'lists' (default): the build's step 5 (neighbors.py) stores the list; a pair loop reads count[a] and one i32 per neighbour.
+- 'lists' (default): the build's step 5 (verlet_lists.py) stores the list; a pair loop reads count[a] and one i32 per neighbour.
   Bytes per fluid particle-step, WCSPH (force, continuity and wall passes; N = neighbours within the list
   radius, support x 1.15: ~28 in 2D at h = 1.3 dx, ~51 in 3D at support 2 dx): 3 x 4 N of indices
   (~340 B in 2D, ~610 B in 3D) plus the rebuild's 4 N written every ~10-20 steps, on top of the gathered
@@ -25,7 +23,6 @@ and visit the same neighbours in the same order (tests/test_neighbors.py):
 Measured on the 2-core CPU (PySPH's dam-break scene to t = 0.1 s, f32, one thread): lists 0.66 s,
 cells 1.79 s; hence lists by default on the CPU. On a GPU the choice is the `bench --report` rows
 "wcsph" against "wcsph-cells" (not yet run on one). ISPH needs the lists (its pressure equation's rows).
-
 """
 
 # No `from __future__ import annotations` here: Taichi reads the ti.func signatures.
@@ -37,6 +34,22 @@ ACCESS = ("lists", "cells")
 class NeighborAccess:
     """The access half of NeighborSearch (neighbors.py), which provides the fields used here: count,
     neighbors (lists), cell_id, cell_start, n_cells, strides, periodic, support_radius, _linear."""
+
+    @ti.func
+    def for_each_neighbor(self, a, x: ti.template(), term: ti.template(), acc: ti.template()):
+        """term(a, b, r_ab, acc) for every neighbour b of particle a (b != a, |r_ab| < the list radius), in
+        list order, r_ab = pair_vector(x[a], x[b]); `acc` is passed on by reference. The one pair loop:
+        'lists' reads a's list (one span, no distance test), 'cells' walks the sorted cells and tests.
+        (Written as one loop for both: a plain `range(count[a])` loop for 'lists' compiles to different
+        f32 roundings in some passes, e.g. ISPH's shift, than the form every pass had before.)"""
+        xa = x[a]
+        for s in range(self.slots()):
+            k0, k1 = self.span(a, s)
+            for k in range(k0, k1):
+                b = self.at(a, k)
+                r_ab = self.pair_vector(xa, x[b])
+                if self.listed(r_ab):  # compiled out with lists
+                    term(a, b, r_ab, acc)
 
     @ti.func
     def slots(self):

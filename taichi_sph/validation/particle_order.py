@@ -193,6 +193,7 @@ class OrderProbe:
         self.rho0 = cfg.fluid.rho0
         self.lo, self.hi, self.periodic = tuple(cfg.domain.lo), tuple(cfg.domain.hi), tuple(cfg.periodic)
         self.closest = ti.field(float, shape=2)  # min pair distance: [fluid-fluid, fluid-wall]
+        self.surface = ti.field(ti.i32, shape=solver.n)  # the flags of `surface`, for the pair term
 
     @ti.kernel
     def _measure(self, kernel_sum: ti.types.ndarray(), surface: ti.types.ndarray(), pos: ti.types.ndarray(),
@@ -210,48 +211,52 @@ class OrderProbe:
                 pos[a, d] = P.x[a][d]
             kernel_sum[a] = 0.0
             surface[a] = -1
+            self.surface[a] = -1
             rho[a] = P.rho[a]
             if P.kind[a] == FLUID:
-                xa = P.x[a]
-                sum_w = S.kernel.w0
-                grad_c = ti.Vector.zero(float, S.dim)
-                for s in range(NS.slots()):
-                    k0, k1 = NS.span(a, s)
-                    for k in range(k0, k1):
-                        b = NS.at(a, k)
-                        r_ab = NS.pair_vector(xa, P.x[b])
-                        if NS.listed(r_ab):  # compiled out with lists
-                            r = r_ab.norm()
-                            sum_w += S.kernel.w(r)
-                            grad_c += S.kernel.grad_w(r_ab, r)
-                            if P.kind[b] == FLUID:
-                                ti.atomic_min(self.closest[0], r)
-                            else:
-                                ti.atomic_min(self.closest[1], r)
-                c = kernel_sum_ratio(sum_w, self.volume, self.lattice_sum)
+                sums = ti.Struct(w=S.kernel.w0, grad_c=ti.Vector.zero(float, S.dim))
+                NS.for_each_neighbor(a, P.x, self.kernel_sum_pair, sums)
+                c = kernel_sum_ratio(sums.w, self.volume, self.lattice_sum)
                 flag = c < self.threshold
                 if not flag and c < SURFACE_CANDIDATE:
-                    outward = -grad_c.normalized(1e-12)
-                    flag = True
-                    for s in range(NS.slots()):
-                        k0, k1 = NS.span(a, s)
-                        for k in range(k0, k1):
-                            b = NS.at(a, k)
-                            r_ab = NS.pair_vector(xa, P.x[b])
-                            if NS.listed(r_ab):  # compiled out with lists
-                                r_ba = -r_ab
-                                if P.kind[b] == FLUID and in_surface_cone(r_ba, r_ba.norm(), outward, S.support):
-                                    flag = False
+                    cone = ti.Struct(outward=-sums.grad_c.normalized(1e-12), flag=True)
+                    NS.for_each_neighbor(a, P.x, self.surface_cone_pair, cone)
+                    flag = cone.flag
                 kernel_sum[a] = c
                 surface[a] = ti.select(flag, 1, 0)
+                self.surface[a] = surface[a]
         for a in range(S.n):  # after the loop above: every flag is set
             full[a] = 0
             if surface[a] == 0:
-                full[a] = 1
-                for k in range(NS.count[a]):
-                    b = NS.neighbors[a, k]
-                    if surface[b] == 1:
-                        full[a] = 0
+                support = ti.Struct(full=1)
+                NS.for_each_neighbor(a, P.x, self.full_support_pair, support)
+                full[a] = support.full
+
+    @ti.func
+    def kernel_sum_pair(self, a, b, r_ab, sums: ti.template()):
+        """sum_b W_ab and grad c (unscaled) of pair (a, b); the closest fluid-fluid and fluid-wall pairs."""
+        S = self.solver
+        r = r_ab.norm()
+        sums.w += S.kernel.w(r)
+        sums.grad_c += S.kernel.grad_w(r_ab, r)
+        if S.particles.kind[b] == FLUID:
+            ti.atomic_min(self.closest[0], r)
+        else:
+            ti.atomic_min(self.closest[1], r)
+
+    @ti.func
+    def surface_cone_pair(self, a, b, r_ab, cone: ti.template()):
+        """A fluid neighbour in the scan cone around a's outward normal: a is not at the free surface."""
+        r_ba = -r_ab
+        if self.solver.particles.kind[b] == FLUID and in_surface_cone(r_ba, r_ba.norm(), cone.outward,
+                                                                      self.solver.support):
+            cone.flag = False
+
+    @ti.func
+    def full_support_pair(self, a, b, r_ab, support: ti.template()):
+        """A free-surface particle within a's support: a's support is not full."""
+        if self.surface[b] == 1:
+            support.full = 0
 
     def particles(self) -> dict:
         """Per fluid particle (in the solver's current order): x, kernel_sum c_a, free_surface (the

@@ -1,0 +1,53 @@
+"""WCSPH's and ISPH's kinematic wall condition (physics/walls.py) on a solver's wall faces."""
+
+# No `from __future__ import annotations`: Taichi reads the ti.func signatures.
+import taichi as ti
+
+from taichi_sph.physics.walls import kinematic_wall_condition
+from taichi_sph.scene.bodies import WALL, ParticleArrays, wall_face_planes
+from taichi_sph.sph.particles import np_float
+
+
+class KinematicWalls:
+    """Mixin of SolverBase: the wall faces (permuted with the particles) and the cut of a velocity."""
+
+    def init_kinematic_walls(self, arrays: ParticleArrays, clearance_dx: float | None) -> None:
+        """Each wall particle's face (unit normal into the fluid, plane offset; permuted with it) for the
+        kinematic wall condition (physics/walls.py), kept `clearance_dx` dx off the faces; None: off."""
+        self.kinematic_walls = self.features.walls and clearance_dx is not None
+        if self.kinematic_walls:
+            P = self.particles
+            self.wall_clearance = clearance_dx * self.dx
+            normal, offset = wall_face_planes(self.cfg, arrays.x, arrays.kind)
+            self.wall_normal = P.add_vector(persistent=True)
+            self.wall_offset = P.add_scalar(persistent=True)
+            self.wall_normal.from_numpy(normal.astype(np_float()))
+            self.wall_offset.from_numpy(offset.astype(np_float()))
+            self.wall_cuts = ti.field(ti.i32, shape=())  # particle-steps the condition cut (over the run)
+
+    @ti.func
+    def kinematic_wall_cut(self, a, v, dt):
+        """v of fluid particle a after the kinematic condition of each wall neighbour's face (only faces
+        it is on the fluid side of, or at most dx/2 past); returns (v, 1 if some face cut it)."""
+        P = self.particles
+        state = ti.Struct(xa=P.x[a], v=v, cut=0, dt=dt)
+        self.nsearch.for_each_neighbor(a, P.x, self.kinematic_wall_pair, state)
+        return state.v, state.cut
+
+    @ti.func
+    def kinematic_wall_pair(self, a, b, r_ab, state: ti.template()):
+        """The face of wall neighbour b limits state.v (the condition, in neighbour order)."""
+        if self.particles.kind[b] == WALL:
+            distance = state.xa.dot(self.wall_normal[b]) - self.wall_offset[b]
+            if distance > -0.5 * self.dx:
+                w, c = kinematic_wall_condition(state.v, self.wall_normal[b], distance, self.wall_clearance,
+                                                state.dt)
+                state.v = w
+                state.cut = ti.max(state.cut, c)
+
+    def kinematic_walls_summary(self) -> dict:
+        """summary.json `kinematic_walls`: the clearance and how often the condition acted."""
+        if not getattr(self, "kinematic_walls", False):
+            return {}
+        return {"kinematic_walls": {"clearance_dx": self.wall_clearance / self.dx,
+                                    "particle_steps_cut": int(self.wall_cuts[None])}}
