@@ -3,64 +3,28 @@
 The window draws through the same code as the offscreen frames (render.scene.ParticleDrawer for the
 particles, render.overlay for the label and colour bar, drawn here as quads instead of burned into
 an image), so a window frame and an offscreen frame of the same state agree pixel for pixel outside
-the controls panel.
-
-Each frame steps the solver for as long as the frame budget (1/30 s minus the last frame's drawing
-and writing time) allows, at least one step, then draws. The panel reads out the time, steps/s, the
-real-time factor, frames/s and what a frame costs (stepping, drawing and writing apart). Reset
-rewinds the solver in memory (rewind.SolverMemento).
-
-No display: GLFW cannot start and Taichi ends the whole process with status 1, so the display is
-checked before the window opens (`display_problem`) and `view` fails with one line (exit 2).
+the controls panel. The panel reads out the time, the rates and what a frame costs (view_pacing.py);
+keys and buttons pause, step, reset, recolour. Reset rewinds the solver in memory (rewind.SolverMemento).
+Without a display `view` fails with one line (view_display.py).
 """
 
 from __future__ import annotations
 
-import ctypes
-import ctypes.util
-import math
-import os
 import sys
 import time
-from collections import deque
 from pathlib import Path
 
 import numpy as np
 
-from taichi_sph.errors import RenderUnavailable, UsageError
+from taichi_sph.cli.view_display import display_problem, no_display_error
+from taichi_sph.cli.view_pacing import FRAME_BUDGET_S, FrameWriter, Rate, frame_cost_lines, run_report, step_for
+from taichi_sph.errors import UsageError
 from taichi_sph.run.rewind import SolverMemento
 
-FRAME_BUDGET_S = 1.0 / 30.0  # stepping fills the frame up to this, drawing included
-TARGET_FPS = 20.0
+__all__ = ["Viewer", "cmd_view", "display_problem", "panel_rect"]
+
 CONTROLS = ("keys: space pause/resume,", "s step, r reset, c colour,", "w walls, h panel, esc quit")
 CAMERA_CONTROLS = ("left-drag: orbit,", "right-drag or +/-: zoom")
-
-
-def display_problem() -> str | None:
-    """None when an X display can be opened (what GLFW needs); otherwise why not, in a few words."""
-    display = os.environ.get("DISPLAY", "")
-    if not display:
-        return "DISPLAY is not set"
-    name = ctypes.util.find_library("X11") or "libX11.so.6"
-    try:
-        xlib = ctypes.CDLL(name)
-    except OSError:
-        return "libX11 is missing (apt-get install -y libx11-6)"
-    xlib.XOpenDisplay.restype = ctypes.c_void_p
-    xlib.XOpenDisplay.argtypes = [ctypes.c_char_p]
-    xlib.XCloseDisplay.argtypes = [ctypes.c_void_p]
-    handle = xlib.XOpenDisplay(display.encode())
-    if not handle:
-        return f"cannot open display '{display}'"
-    xlib.XCloseDisplay(handle)
-    return None
-
-
-def no_display_error(reason: str, config: str = "CONFIG") -> RenderUnavailable:
-    return RenderUnavailable(f"view needs a display and none is usable ({reason}); render offscreen with "
-                             f"`taichi-sph run {config}`, or start a virtual display: "
-                             f"`xvfb-run -a -s \"-screen 0 1280x720x24\" taichi-sph view {config}` "
-                             f"(apt-get install -y xvfb xauth)")
 
 
 def panel_rect(layout) -> tuple[float, float, float, float]:
@@ -68,50 +32,6 @@ def panel_rect(layout) -> tuple[float, float, float, float]:
     L = layout
     pw, ph = min(320, 0.45 * L.width), min(330, 0.75 * L.plot_h)
     return (L.plot_w - pw - 4) / L.width, (L.band_h + 4) / L.height, pw / L.width, ph / L.height
-
-
-class Rate:
-    """Events per second and simulated time per wall second over the last `span_s` seconds."""
-
-    def __init__(self, span_s: float = 1.0) -> None:
-        self.span_s = span_s
-        self.samples: deque = deque()  # (wall time, steps, simulated time)
-
-    def add(self, steps: int, t: float) -> None:
-        now = time.perf_counter()
-        self.samples.append((now, steps, t))
-        while len(self.samples) > 2 and now - self.samples[0][0] > self.span_s:
-            self.samples.popleft()
-
-    def rates(self) -> tuple[float, float, float]:
-        """(frames/s, steps/s, real-time factor)."""
-        if len(self.samples) < 2:
-            return 0.0, 0.0, 0.0
-        (w0, s0, t0), (w1, s1, t1) = self.samples[0], self.samples[-1]
-        span = max(w1 - w0, 1e-9)
-        return (len(self.samples) - 1) / span, (s1 - s0) / span, (t1 - t0) / span
-
-
-class FrameWriter:
-    """Writes PNG frames on a background thread (PNG compression takes ~15 ms a 960x540 frame here), at
-    most a few frames behind: the main thread waits when more are pending."""
-
-    def __init__(self, max_pending: int = 4) -> None:
-        from concurrent.futures import ThreadPoolExecutor
-
-        self.pool, self.pending, self.max_pending = ThreadPoolExecutor(max_workers=1), deque(), max_pending
-
-    def write(self, path: Path, image: np.ndarray) -> None:
-        import imageio.v3 as iio
-
-        while len(self.pending) >= self.max_pending:
-            self.pending.popleft().result()
-        self.pending.append(self.pool.submit(iio.imwrite, path, image, compress_level=1))
-
-    def close(self) -> None:
-        while self.pending:
-            self.pending.popleft().result()
-        self.pool.shutdown()
 
 
 class Viewer:
@@ -176,15 +96,7 @@ class Viewer:
         solver, t_end = self.solver, self.cfg.time.t_end
         budget = 0.0 if single else max(FRAME_BUDGET_S - self.draw_s - self.record_s, 0.0)
         t0 = time.perf_counter()
-        steps, batch = 0, 1
-        while solver.t < t_end - 1e-12:
-            # batches of steps (WCSPH runs a batch on the device without read-backs)
-            dts = solver.advance(batch, math.inf, t_end)
-            steps += len(dts)
-            elapsed = time.perf_counter() - t0
-            if single or not dts or elapsed >= budget:
-                break
-            batch = int(max(1, min(64, (budget - elapsed) / (elapsed / steps))))  # what the rest of the budget holds
+        steps = step_for(solver, t_end, budget, single)
         self.step_s, self.steps_last = time.perf_counter() - t0, steps
         if solver.read_stats()["non_finite"] > 0:
             self.paused, self.status = True, "unstable: NaN (r: reset)"
@@ -227,18 +139,9 @@ class Viewer:
         """The panel's text, in lines short enough for it: time, rates, a frame's cost, why below 20 frames/s."""
         fps, sps, rtf = self.rate.rates()
         s = self.solver
-        lines = [f"t = {s.t:.4f} s, step {s.step_count}", self.status,
-                 f"{sps:.0f} steps/s, real time x{rtf:.2g}",
-                 f"{fps:.1f} frames/s; a frame:",
-                 f"  stepping {1e3 * self.step_s:.1f} ms ({self.steps_last} steps)",
-                 f"  drawing {1e3 * self.draw_s:.1f} ms"]
-        if self.record_dir is not None:
-            lines.append(f"  writing it {1e3 * self.record_s:.1f} ms")
-        if not self.paused and 0.0 < fps < TARGET_FPS:
-            costs = {"one step takes": self.step_s / max(self.steps_last, 1),
-                     f"drawing {s.n} particles:": self.draw_s, "writing frames (--record):": self.record_s}
-            why = max(costs, key=costs.get)  # the largest cost is the reason
-            lines += [f"below {TARGET_FPS:.0f} frames/s because", f"  {why} {1e3 * costs[why]:.0f} ms"]
+        lines = [f"t = {s.t:.4f} s, step {s.step_count}", self.status, f"{sps:.0f} steps/s, real time x{rtf:.2g}"]
+        lines += frame_cost_lines(fps, self.step_s, self.steps_last, self.draw_s, self.record_s,
+                                  self.record_dir is not None, s.n, self.paused)
         lines.append(f"colour: {self.colour_by}, walls {'on' if self.drawer.show_walls else 'off'}")
         return lines
 
@@ -320,10 +223,7 @@ class Viewer:
     # -- the loop -------------------------------------------------------------------------------
     def run(self) -> int:
         self._open()
-        from taichi_sph.render import image_from_buffer
-
         folder = writer = None
-        frames_written: list[Path] = []
         if self.record_dir is not None:
             from taichi_sph.config.loader import to_dict
             from taichi_sph.run.output import RunFolder
@@ -331,38 +231,13 @@ class Viewer:
             writer = FrameWriter()
             folder = RunFolder(self.record_dir).prepare()
             folder.write_config(to_dict(self.cfg))
+        self.frames_written: list[Path] = []
+        self.costs: tuple[list[float], list[float], list[float]] = ([], [], [])  # per frame: stepping, drawing, writing
         shown = 0
         wall0 = time.perf_counter()
-        step_costs: list[float] = []  # per frame, seconds
-        draw_costs: list[float] = []
-        record_costs: list[float] = []
         try:
             while self.window.running and (self.frames is None or shown < self.frames):
-                self._input()
-                if self._reset:
-                    self.initial.restore()  # the solver as it was before its first step
-                    self.paused, self.status, self._reset = False, "running", False
-                if not self.paused or self._single:
-                    self._advance(self._single)
-                else:
-                    self.step_s, self.steps_last = 0.0, 0
-                self._single = False
-                d0 = time.perf_counter()
-                self._draw()
-                if self.show_panel:
-                    self._panel()
-                r0 = time.perf_counter()  # with --record, GGUI draws the frame when it is read back: counted here
-                if writer is not None:
-                    path = folder.frames_dir / f"frame_{shown:05d}.png"
-                    writer.write(path, image_from_buffer(self.window.get_image_buffer_as_numpy()))
-                    frames_written.append(path)
-                self.record_s = time.perf_counter() - r0
-                self.window.show()
-                self.draw_s = time.perf_counter() - d0 - self.record_s
-                step_costs.append(self.step_s)
-                draw_costs.append(self.draw_s)
-                record_costs.append(self.record_s)
-                self.rate.add(self.solver.step_count, self.solver.t)
+                self._frame(shown, folder, writer)
                 shown += 1
         finally:
             from taichi_sph.render import scene
@@ -372,16 +247,39 @@ class Viewer:
                 writer.close()
         wall = time.perf_counter() - wall0
         if folder is not None:
-            self._finish_record(folder, frames_written)
+            self._finish_record(folder, self.frames_written)
         if not self.quiet and shown:
-            # medians: the first frame also compiles kernels and shaders
-            step_ms, draw_ms, rec_ms = (1e3 * float(np.median(c)) for c in (step_costs, draw_costs, record_costs))
-            rec = f" + {rec_ms:.1f} ms writing" if folder is not None else ""
-            print(f"view: {shown} frames in {wall:.2f} s ({shown / max(wall, 1e-9):.1f} frames/s, first frame "
-                  f"{1e3 * (step_costs[0] + draw_costs[0]):.0f} ms); median frame {step_ms:.1f} ms stepping + "
-                  f"{draw_ms:.1f} ms drawing{rec} = {1e3 / max(step_ms + draw_ms + rec_ms, 1e-9):.1f} frames/s; "
-                  f"{self.solver.step_count} steps to t = {self.solver.t:.4g} s")
+            print(run_report(shown, wall, *self.costs, folder is not None, self.solver.step_count, self.solver.t))
         return 0
+
+    def _frame(self, shown: int, folder, writer) -> None:
+        """One frame: input, reset, the steps, drawing (and the panel), writing it (--record), showing it."""
+        from taichi_sph.render import image_from_buffer
+
+        self._input()
+        if self._reset:
+            self.initial.restore()  # the solver as it was before its first step
+            self.paused, self.status, self._reset = False, "running", False
+        if not self.paused or self._single:
+            self._advance(self._single)
+        else:
+            self.step_s, self.steps_last = 0.0, 0
+        self._single = False
+        d0 = time.perf_counter()
+        self._draw()
+        if self.show_panel:
+            self._panel()
+        r0 = time.perf_counter()  # with --record, GGUI draws the frame when it is read back: counted here
+        if writer is not None:
+            path = folder.frames_dir / f"frame_{shown:05d}.png"
+            writer.write(path, image_from_buffer(self.window.get_image_buffer_as_numpy()))
+            self.frames_written.append(path)
+        self.record_s = time.perf_counter() - r0
+        self.window.show()
+        self.draw_s = time.perf_counter() - d0 - self.record_s
+        for costs, value in zip(self.costs, (self.step_s, self.draw_s, self.record_s)):
+            costs.append(value)
+        self.rate.add(self.solver.step_count, self.solver.t)
 
     def _finish_record(self, folder, frames: list[Path]) -> None:
         """The final state as a snapshot (the last frame shows it) and the video, as `run` writes them."""
