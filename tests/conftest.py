@@ -27,7 +27,7 @@ def taichi_cpu():
     suite in one runtime crashed hundreds of tests later. And a solver built first after an init gets the
     same SNode ids as every other solver built first, so the tests that build the same scene share compiled
     kernels through the offline cache (above) instead of compiling them once per test: test_device_loop's
-    ten tests build one column 14 times. A test that allocated nothing leaves the runtime to the next one
+    ten tests build one column 15 times. A test that allocated nothing leaves the runtime to the next one
     (re-initialising costs ~0.5 s). (The product's multi-run commands release theirs per run:
     executor.release_runtime.)"""
     global _ours
