@@ -1,37 +1,11 @@
-"""Momentum-equation terms: pressure gradient, tensile correction, viscosities (per particle pair).
+"""Momentum-equation terms per particle pair: pressure gradient, tensile correction, viscosities.
 
-Tensile correction on the dam break (issue 15: "switched on, drives the dam break unstable at t = 0.46 s").
-With the code as it stands the default dam_break_2d (a/80, h = 2 dx, Wendland C2) with the correction on
-runs to t = 1 s without a blow-up and with the same front (raw / shifted RMS 0.2443 / 0.0397), but fluid
-particles end up up to 0.2 dx through the floor under the thin tongue from t = 0.45 s on (in 10 of the 12
-0.05 s snapshots from then; 3 at t = 1 s, one of them through the back wall): that is the issue's 0.46 s, and a wall
-crossing is what the validation and the stability battery call unstable. One cause: the wall neighbours
-took their artificial pressure R_w from their Adami pressure, which is clamped at >= 0 (walls push, never
-pull), so R_w = 0 and a fluid particle in tension was pushed toward the wall by its fluid neighbours' R and
-not back. A wall particle is ghost fluid mirroring the particle it faces: it now takes that particle's R
-(solvers/wcsph.py). At a/40 to t = 0.7 s: 1 particle through the floor before, 0 after; at a/80 to
-t = 0.7 s, crossings in 2 of the 6 snapshots from t = 0.45 s instead of 4 of 6 (2 particles at 0.7 s,
-0.03-0.12 dx deep, front 0.2441 / 0.0398): better, not fixed, so the correction stays off by default. The
-particles that cross are at positive pressure, pressed onto the floor by neighbours in tension above them.
-Monaghan's positive-pressure term (`epsilon_positive` 0.01) did not help: the pairs the dam break forms
-along its walls (closest 0.006-0.016 dx, with or without the correction) are beyond any kernel-gradient
-repulsion (grad W -> 0 as r -> 0 for the Wendland kernels), and it let 1 particle through at a/40 with
-the mirror.
-Since WCSPH's kinematic wall condition (`wcsph.wall_clearance`, on by default) the correction is usable
-on the dam break: the default dam_break_2d with `wcsph.tensile_correction.enabled=true` runs to t = 1 s
-(status ok, 10953 steps) with 0 particles outside the walls at every output time
-(conservation.wall_crossings_max), front raw / shifted RMS 0.2441 / 0.0398 (targets 0.25 / 0.04), max
-density error 0.071; at a/40 0 crossings against 6 with `wcsph.wall_clearance=null`, at a/20 0 against 1
-(tests/test_wcsph.py). It does not separate the wall pairs: closest fluid pair 0.004 dx (as without it).
-It stays off by default: the front is the same to four digits.
-
-Tensile instability control (`wcsph.tensile_instability_control`, Sun et al. 2017, delta+-SPH): a particle
-with p_a < 0 outside the free-surface region (no surface particle within its support: the sun shifting's
-flags) takes the difference form -(1/rho_a) sum_b (p_b - p_a) grad_a W_ab V_b, which is zero for a uniform
-pressure whatever the arrangement, so tension cannot pull pairs together; elsewhere the symmetric form keeps
-momentum (and the surface, where p_a ~ 0, is unchanged). On the rotating square (configs/rotating_square_2d.yaml,
-fluid in tension inside) without any shift: shape error 0.80% to omega t = 1 where the symmetric form tears the
-patch (26.8%); with the scene's shift at dx L/100 the closest pair stays at 0.76 dx where it fell to 0.40 dx.
+The symmetric pressure gradient -m_b (p_a / rho_a^2 + p_b / rho_b^2) grad_a W_ab conserves momentum; the difference
+form -(1/rho_a) (p_b - p_a) grad_a W_ab V_b is zero for a uniform pressure, so tension cannot pull pairs together
+(delta+-SPH's tensile instability control, Sun et al. 2017, for p_a < 0 off the free surface). Monaghan's (2000)
+tensile correction -m_b (R_a + R_b) (W / W(dx))^n grad W (a wall particle takes the R of the fluid particle it
+mirrors), Monaghan's (1992) artificial viscosity and Morris, Fox & Zhu's (1997) laminar viscosity. What the
+tensile terms did on the dam break and the rotating square: docs/notes/momentum.md.
 """
 
 import taichi as ti

@@ -1,22 +1,12 @@
 """Wall boundary: Adami, Hu & Adams (2012) pressure and velocity extrapolation to wall particles, and the
 kinematic no-penetration condition for particles the pressure cannot hold off a wall.
 
-The kinematic condition acts on the faces of the wall bodies (geometry.wall_face_planes), which are fixed
-planes: wall particles are never moved, and a wall's `velocity` is its surface sliding along its faces
-(a lid), not the face moving. So only the fluid's own normal velocity counts: v . n >= -(d - c) / dt.
-Why it used to act along moving walls (issue 15; lid-driven cavity_2d, ISPH: 2654 particle-steps cut,
-centreline RMS against Ghia 0.0057 pooled / 0.0155 final with it, 0.0040 / 0.0062 without):
-- wrong faces: the open-top wall_box's shell reached `layers` dx above its top, so it claimed the lid's
-  particles within the fluid's reach and gave them its side faces x = 0 and x = 1 (normal +-x); the
-  lid's own face y = 1 was never enforced;
-- wrong face velocity: the condition took the wall particle's velocity as the face's, (v - v_w) . n;
-  with the lid's v_w = (1, 0) on a face of normal +x that face was taken to advance into the fluid at
-  1 m/s, so every particle near the top-left corner slower than the lid was pushed toward +x;
-- phantom faces on periodic axes: a block spanning a periodic axis has no end face there, but its end
-  particles were given one, and fluid wrapping through the seam near the block met it (not seen in
-  poiseuille_2d only because its near-wall fluid never wraps in 1 s).
-Fixed: a box claims only its own particles, no face is perpendicular to a periodic axis, and the face
-velocity is zero. In a sliding-wall Couette flow the condition now never acts (tests/test_isph.py)."""
+The kinematic condition acts on the faces of the wall bodies (scene/bodies.py `wall_face_planes`), fixed planes:
+wall particles are never moved, and a wall's `velocity` is its surface sliding along its faces (a lid), not the
+face moving. Only the fluid's own normal velocity counts: v . n >= -(d - c) / dt (d the distance to the face,
+c the clearance). A box claims only its own particles, and no face is perpendicular to a periodic axis. Why
+the condition once acted along the cavity's lid, and what it measured: docs/notes/walls.md.
+"""
 
 import taichi as ti
 

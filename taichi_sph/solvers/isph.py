@@ -1,86 +1,15 @@
 """Incompressible SPH by projection: predictor -> pressure Poisson equation -> pressure correction -> shift.
 
 One step, every operator at the positions x^n (Cummins & Rudman 1999 projection, Shao & Lo 2003 Laplacian):
-
-1. neighbours; rho_a = sum_b m_b W_ab / (lattice kernel sum), so that a full lattice has rho0 exactly.
-   Free surface: kernel sum below `isph.free_surface_threshold` x the lattice sum, or below 0.97 with
-   no fluid neighbour in the 45-degree cone around the outward normal (a contact line, where the wall
-   fills the kernel sum), or (`isph.one_sided_ratio`) below 0.97 with a one-sided support by the
-   projection's self ratio (physics/free_surface.py; "One-sided supports" below). These particles get the
-   Dirichlet pressure p = p_b + (dx/2) |rho0 (g - a)| (the
-   pressure half a spacing below the surface, p_b in free fall; a is last step's acceleration averaged
-   over the fluid neighbours, so one particle's spike does not feed its own next pressure; the ambient
-   pressure p_b is `fluid.background_pressure`, 0 in free-surface scenes) and are not unknowns.
-2. predictor: v* = v + dt (g + viscous), no pressure (viscous terms as in WCSPH).
-3. PPE  -sum_b K_ab (p_a - p_b) = s_a  at every other fluid particle (physics/ppe.py):
-   - fluid neighbours are unknowns, or Dirichlet values moved to the right side;
-   - wall neighbours: p_w = p_a + rho0 g . (x_w - x_a) pair by pair, a Neumann condition that adds no
-     matrix entry (walls are not unknowns) and is exact for a fluid at rest; in div(v*) a wall moves
-     with v_w + dt g, so only motion relative to the wall is a source;
-   - the part of a support cut off by the free surface: pressure continued linearly with the gradient
-     rho0 (g - a) of the last step, again only a right-side term;
-   - rows scaled by V_a = m_a / rho0: symmetric positive definite.
-   Source (`isph.source`): div(v*) / dt, (rho0 - rho*) / (rho0 dt^2) or their blend. With
-   `isph.compression_only` (free-surface scenes) the density term corrects compression only (rho floored
-   at rho0): a liquid does not expand, and a summation density
-   below rho0 is a truncated support (next to the free surface) or lattice disorder, which the term
-   would turn into suction. That suction held back the thin dam-break tongue and bent the front away
-   from Martin & Moyce's shape (a/80: shifted RMS 0.0425 at blend 0.03 without the floor, 0.0395 at
-   blend 0.1 with it), and at CFL 0.1 (source ~ 1/dt^2) it blew the dam break up at t = 0.56 s.
-   It is off by default: in a closed box the volume is fixed, a deficit in one place is an excess in
-   another, and a one-sided source drifts (cavity_2d: 25% density error by t = 1.7 s with it).
-   No free-surface particle at all (closed or periodic box): the right side is projected to zero mean
-   and the pressure shifted to mean `fluid.background_pressure`.
-4. Matrix-free weighted Jacobi or Jacobi-preconditioned CG (physics/ppe.py), warm-started from the
-   previous pressure; on the CPU the iteration loops run on one thread or in parallel, whichever the
-   first solve timed faster.
-5. Walls get the Adami-extrapolated new pressure (>= p_b); v = v* - dt grad p / rho0; x += dt v, with the
-   kernel-gradient-corrected difference form grad p_a = (M_a^T)^-1 sum_b V_b (p_b - p_a) grad_a W_ab:
-   exact for a linear pressure at a surface or a corner, independent of the pressure level. The
-   symmetric (momentum-conserving) form was tried first: at a resting surface it is 3.8% out of
-   balance, and the tank at rest paired particles and blew up within 10 steps of dt = 0.016 s.
-   Kinematic wall condition (`isph.wall_clearance`): the speed toward each wall face within reach is cut
-   so that no particle comes closer than the clearance (free-surface films have no PPE pressure). Faces
-   are fixed planes of each wall body's own shape; a sliding wall's velocity does not move them (it used
-   to: on the lid-driven cavity the box's side faces, given to the lid's particles with the lid's
-   velocity, pushed the fluid under the lid; physics/walls.py says how).
-6. Particle shifting (on by default for ISPH; solvers/shifting.py).
-
-The void at the centre of a stretching body (issue 15; configs/elliptical_drop_2d.yaml, u = A0 (x, -y)):
-the corrected pressure gradient has no pairwise repulsion, so nothing but shifting re-orders particles
-that the flow strains, and Skillen's shift D = A h |v_a| dt is zero at the stagnation point at the centre.
-The centre stays an affinely stretched lattice (columns ever further apart of particles ever closer
-together) inside a shifted, isotropic rest; the seam between the two tears: with the scene's settings and
-`shifting.model: skillen`, void particles (interior, kernel sum below the free-surface threshold, so
-Dirichlet p = 0 inside the fluid) from t = 0.26 s, 35 at t = 0.36 s, a hole several dx wide at the centre,
-and a particle thrown out of the domain at t = 0.377 s. A particle row on the mirror line x = 0 (the
-circle's lattice had one) made it worse: no force or shift can move it off the line, and the summation
-density along it reached +15% (cfl 0.25, blend 0.1). Fixed by `shifting.model: sun` (the flow's largest
-speed in D, Sun et al. 2017), on in the drop scenes, and a cell-centred fluid_sphere lattice
-(geometry.lattice_sphere): no void, min pair 0.78 dx, shape error 0.7% (h = 1.3 dx; the scene now
-takes h = 1.6 dx: 0.63 dx, 0.67%, max density error 4.0% -> 3.35%, all of it at full-support particles). tests/test_drops.py runs the
-stretched drop to t = 0.3 s and asserts no void, the pair distance and the density bound.
-
-One-sided supports and the step (issue 15; the tips of configs/elliptical_drop_2d.yaml). Stretching along
-the normal crowds a tip's outer layer along the surface (0.7 dx) and opens it from the next one, so a
-surface particle's kernel sum rose to 0.83-0.89 with 19 of 32 neighbours, and a fluid particle in its scan
-cone made it a PPE unknown. Its row asked for suction, but with a one-sided support the corrected gradient
-of a pressure below the neighbours' pushes the particle out of the fluid (the p_a term of
-sum_b V_b (p_b - p_a) grad W is p_a grad C, and grad C points into the fluid): the divergence it then
-showed grew, and with it the suction (-2000 -> -4600 Pa in 10 steps), until NaN (t = 0.335 s at dx 0.015).
-`isph.one_sided_ratio` (R_a, physics/free_surface.projection_self_ratio: how much p_a moves a itself
-against how much it moves its neighbours) makes such candidates free-surface: R is 2.3 in a lattice's
-surface layer and 0.07 one below; the tip particles had 0.8-1.3, every other unknown below 0.14 (99th
-percentile). `isph.step_force: explicit` bounds the step by the predictor's acceleration only: the
-pressure's is the projection's response, ~ (rho0 - rho) h / dt^2 through the density source, so a limit
-CFL sqrt(h / |a|) on it feeds back (a shorter step, a larger response), and in the drop it held the step at
-~100 m/s^2 of such noise (cfl 0.025: 2.23% density error with the force limit on the total, 1.37% on the
-explicit part). The velocity the pressure gives is still bounded, by the CFL limit of the next step. Both
-are off by default: on the dam break each moves the shifted front RMS from 0.0392 to 0.0400-0.0401 (raw
-0.2479 -> 0.2447-0.2459), over its 0.04 bound; the wall-less free-surface scenes set them.
-
-Divergence and Laplacian are divided by their value on the initial lattice for a linear (quadratic)
-field: the Wendland C2 gradient sum is 0.974, not 1, at h = 1.3 dx.
+neighbours and the summation density (over the lattice's kernel sum, so a full lattice has rho0); free-surface
+particles (kernel sum, cone scan, one-sided ratio: physics/free_surface.py) get a Dirichlet pressure; predictor
+v* = v + dt (g + viscous); PPE -sum_b K_ab (p_a - p_b) = s_a with rows scaled by V_a (symmetric positive definite),
+walls a pairwise hydrostatic Neumann condition, source div(v*) / dt, (rho0 - rho*) / (rho0 dt^2) or their blend
+(`isph.source`), solved matrix-free (linalg/ppe.py); walls get the Adami pressure; v = v* - dt grad p / rho0 with
+the kernel-gradient-corrected difference gradient; x += dt v; kinematic wall condition; shifting (solvers/shifting.py).
+Invariants: a fluid at rest stays at rest (hydrostatic walls, a gradient exact for a linear pressure at any level);
+with no free surface the pressure has mean `fluid.background_pressure`. The step in detail, and what was measured
+on the way (compression_only, the stretching drop's void, one-sided supports): docs/notes/isph.md.
 """
 
 # No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.

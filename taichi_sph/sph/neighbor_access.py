@@ -10,19 +10,12 @@ functions, so the loop compiles as if written out). r_ab = x_a - x_b (minimum im
 
 `particles.neighbor_access` picks the access at compile time; both compile from the same loop bodies
 and visit the same neighbours in the same order (tests/test_neighbors.py):
-- 'lists' (default): the build's step 5 (verlet_lists.py) stores the list; a pair loop reads count[a] and one i32 per neighbour.
-  Bytes per fluid particle-step, WCSPH (force, continuity and wall passes; N = neighbours within the list
-  radius, support x 1.15: ~28 in 2D at h = 1.3 dx, ~51 in 3D at support 2 dx): 3 x 4 N of indices
-  (~340 B in 2D, ~610 B in 3D) plus the rebuild's 4 N written every ~10-20 steps, on top of the gathered
-  neighbour data (x, v, rho, p, mass, kind: ~40 B per neighbour in 3D f32, mostly cache hits once sorted).
-- 'cells': no list is stored (saves 4 x max_neighbors B per particle: 0.5-1 KB in 3D); a pair loop walks
-  the 3**(dim-1) rows of 3 cells around the cell the particle was sorted into at the last build (cells
-  of the list radius, so the Verlet skin still defers rebuilds) and tests each candidate's distance:
-  ~(3 x 1.15 support / dx)**dim candidates (~80 in 2D, ~330 in 3D at support 2 dx) of 4-12 B each per
-  pass, read contiguously (the layout a GPU coalesces; what the Taichi SPH demo does), 2.7x the arithmetic.
-Measured on the 2-core CPU (PySPH's dam-break scene to t = 0.1 s, f32, one thread): lists 0.66 s,
-cells 1.79 s; hence lists by default on the CPU. On a GPU the choice is the `bench --report` rows
-"wcsph" against "wcsph-cells" (not yet run on one). ISPH needs the lists (its pressure equation's rows).
+- 'lists' (default): the build's step 5 (verlet_lists.py) stores the list; a pair loop reads count[a] and
+  one i32 per neighbour.
+- 'cells': no list is stored (saves 4 x max_neighbors B per particle); a pair loop walks the 3**(dim-1) rows
+  of 3 cells around the particle's cell at the last build and tests each candidate's distance (what the
+  Taichi SPH demo does). ISPH needs the lists (its pressure equation's rows).
+Bytes per particle-step of each, and the CPU timing that made lists the default: docs/notes/neighbors.md.
 """
 
 # No `from __future__ import annotations` here: Taichi reads the ti.func signatures.
