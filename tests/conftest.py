@@ -60,10 +60,11 @@ SLOW = {
     # to t = 0.2 s stays default)
     "test_drops.py::test_stretched_drop[isph-0.4-overrides1-0.02]": "215 s wall cold (loaded): ISPH to t = 0.4",
     "test_drops.py::test_oscillating_drop_wcsph_through_the_first_minimum": "175 s wall cold (loaded): to t = 0.9",
-    # 3D: the 3D window frame (the 2D one stays default) and a 3D dam break (3D runs stay default in
+    # 3D: the 3D window frame (the 2D one stays default), a 3D dam break and 3D MGCG (3D runs stay default in
     # test_run_render and test_render)
     "test_view.py::test_view_3d_frame_matches_offscreen_and_shows_the_fluid": "55 s: Xvfb, a 3D run in a child",
     "test_wcsph.py::test_dam_break_3d_runs_without_crossings": "50 s: 3D dam break to t = 0.1",
+    "test_multigrid.py::test_mgcg_in_1d_and_3d[dam_break_3d.yaml]": "70 s: ISPH with MGCG in 3D (1D stays)",
     # the process-pool battery (two spawned processes compile; test_executor's pool test stays default)
     "test_stability.py::test_battery_on_a_process_pool_assembles_rows_from_the_case_folders": "24 s + spawns",
     # the periodic, shifted variant of the cell walk (the plain one stays default)
