@@ -221,7 +221,7 @@ def test_loop_schedule_gives_identical_results():
 
 
 def test_loop_schedule_probes_then_keeps_the_faster():
-    from taichi_sph.solvers.schedule import LoopSchedule
+    from taichi_sph.sph.schedule import LoopSchedule
     schedule = LoopSchedule(probes=3, warmup=2)
     assert schedule.deciding  # the tests run on the CPU
     times = {True: 2.0, False: 1.0}

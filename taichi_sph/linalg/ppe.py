@@ -44,6 +44,7 @@ from taichi_sph.linalg.ppe_slots import (
     UNKNOWN,
 )
 from taichi_sph.linalg.reduction import RowSums
+from taichi_sph.sph.schedule import fixed_schedule
 
 # the roles and slots the callers fill the system with (solvers/isph.py), from ppe_slots.py
 __all__ = ["BB", "DIRICHLET", "N_DIRICHLET", "N_UNKNOWN", "NOT_IN_PPE", "PPE_SOLVERS", "RZ_NEW", "SUM_B", "UNKNOWN",
@@ -104,7 +105,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         self.rows = PackedRows(nsearch, n, max_neighbors, self.sums)  # the pair coefficients
         # CPU: whether the iteration loops run on one thread (see `_choose_schedule`); elsewhere parallel
         self.on_cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
-        self.serial: bool | None = None if self.on_cpu else False
+        self.serial: bool | None = fixed_schedule() if self.on_cpu else False
         self.schedule_timings: dict[str, float] = {}
 
     @ti.func

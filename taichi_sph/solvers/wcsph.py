@@ -29,8 +29,8 @@ from taichi_sph.physics.momentum import (
 from taichi_sph.scene.bodies import FLUID, ParticleArrays
 from taichi_sph.solvers.base import SolverBase
 from taichi_sph.solvers.clock import DT_LIMITS, DeviceClock
-from taichi_sph.solvers.schedule import LoopSchedule
 from taichi_sph.solvers.shifting import ParticleShifting
+from taichi_sph.sph.schedule import LoopSchedule
 
 
 @ti.data_oriented

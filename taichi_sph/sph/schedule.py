@@ -1,7 +1,21 @@
 """Whether a solver's step loops run on one thread (CPU): decided by timing steps."""
 
+import os
+
 import numpy as np
 import taichi as ti
+
+from taichi_sph.errors import SPHError
+
+SCHEDULE_ENV = "TAICHI_SPH_LOOP_SCHEDULE"  # serial | parallel | auto (the default): fixes the choice
+
+
+def fixed_schedule() -> bool | None:
+    """TAICHI_SPH_LOOP_SCHEDULE: True (serial), False (parallel) or None (auto: decided by timing)."""
+    fixed = os.environ.get(SCHEDULE_ENV, "auto").strip().lower()
+    if fixed not in ("auto", "serial", "parallel", ""):
+        raise SPHError(f"{SCHEDULE_ENV}={fixed!r}: allowed serial, parallel, auto")
+    return None if fixed in ("auto", "") else fixed == "serial"
 
 
 class LoopSchedule:
@@ -12,12 +26,14 @@ class LoopSchedule:
     faster on one thread, dam_break_2d's 16.5k particles at h = 2 dx ~40% slower. The first steps run
     one schedule, then the other, `warmup + probes` steps each (alternating step by step made both
     look alike: each switch costs cache and thread wake-ups), and the faster median of the last
-    `probes` wins. Results do not depend on the choice: the loops concerned write per particle, and
-    reductions are max or integer counts. On a GPU the loops always run in parallel."""
+    `probes` wins. The loops write per particle and reduce by max or integer counts, but the two
+    schedules are compiled apart and fast-math may round a pair term differently (last f32 digits): a
+    run that must repeat bit for bit sets TAICHI_SPH_LOOP_SCHEDULE=serial or parallel (the tests do).
+    On a GPU the loops always run in parallel."""
 
     def __init__(self, probes: int = 6, warmup: int = 3) -> None:
         cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
-        self.serial: bool | None = None if cpu else False
+        self.serial: bool | None = fixed_schedule() if cpu else False
         self.probes = probes
         self.warmup = warmup
         self.samples: dict[bool, list[float]] = {True: [], False: []}
