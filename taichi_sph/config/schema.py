@@ -262,7 +262,9 @@ class Render:
 @dataclass(frozen=True)
 class Probe:
     name: str = opt("probe", "column name in timeseries.csv")
-    quantity: str = opt("pressure", "what the probe measures (kernel-weighted over fluid)", choices=("pressure", "velocity_x", "density"))
+    quantity: str = opt("pressure", "what the probe measures (kernel-weighted over fluid); elevation: the free-surface height "
+                                    "above the position's horizontal coordinates (its vertical one is ignored)",
+                        choices=("pressure", "velocity_x", "density", "elevation"))
     position: tuple[float, ...] = opt((0.0, 0.0), "probe location", unit="m")
 
 
@@ -270,18 +272,19 @@ class Probe:
 class Metric:
     type: str = opt("hydrostatic", "reference metric written to summary.json errors",
                     choices=("hydrostatic", "surge_front", "taylor_green", "poiseuille", "cavity", "column_fall",
-                             "probe_pressure", "drop_ellipse", "rotating_square"))
-    depth: float | None = opt(None, "hydrostatic: fluid depth H", unit="m", positive=True)
+                             "probe_pressure", "drop_ellipse", "rotating_square", "standing_wave"))
+    depth: float | None = opt(None, "hydrostatic / standing_wave: fluid depth H", unit="m", positive=True)
+    amplitude: float | None = opt(None, "standing_wave: the wave's amplitude a", unit="m", positive=True)
     floor: float = opt(0.0, "hydrostatic / surge_front: floor height", unit="m")
     column_width: float | None = opt(None, "surge_front: column width a", unit="m", positive=True)
-    origin: float = opt(0.0, "surge_front: x of the wall the column leans on", unit="m")
+    origin: float = opt(0.0, "surge_front: x of the wall the column leans on; standing_wave: x of the tank's left wall", unit="m")
     t_max: float = opt(3.0, "surge_front: last dimensionless time T compared")
     lid_velocity: float = opt(1.0, "cavity: lid speed", unit="m/s")
     strain_rate: float = opt(0.0, "drop_ellipse: A0 of the first fluid_sphere's initial velocity A0 (x - c, c - y) about its "
                                   "centre c", unit="1/s")
     angular_velocity: float = opt(1.0, "rotating_square: omega of the first fluid_block's initial rigid rotation u = omega "
                                        "(y - y_c, x_c - x) about its centre (clockwise for omega > 0)", unit="1/s")
-    width: float = opt(1.0, "poiseuille / cavity: channel or cavity width", unit="m")
+    width: float = opt(1.0, "poiseuille / cavity: channel or cavity width; standing_wave: tank length", unit="m")
     probe: str = opt("", "probe_pressure: name of the probe (see probes) compared with the reference")
     reference: str = opt("dambreak_buchner2002_pressure_probe_pysph",
                          "probe_pressure: bundled reference table with columns t_star = t sqrt(g/H), p_star = p/(rho0 g H)")

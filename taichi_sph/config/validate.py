@@ -79,9 +79,11 @@ def validate(cfg: Config, source: str) -> None:
     for i, p in enumerate(cfg.probes):
         _check_vec(p.position, d, f"probes[{i}].position", source)
     for i, m in enumerate(cfg.metrics):
-        needed = {"hydrostatic": "depth", "surge_front": "column_width", "probe_pressure": "depth"}.get(m.type)
-        if needed and getattr(m, needed) is None:
-            raise ConfigError(f"a {m.type} metric needs '{needed}'", source=source, key=f"metrics[{i}].{needed}")
+        needs = {"hydrostatic": ("depth",), "surge_front": ("column_width",), "probe_pressure": ("depth",),
+                 "standing_wave": ("depth", "amplitude")}.get(m.type, ())
+        for needed in needs:
+            if getattr(m, needed) is None:
+                raise ConfigError(f"a {m.type} metric needs '{needed}'", source=source, key=f"metrics[{i}].{needed}")
         if m.type == "probe_pressure" and m.probe not in [p.name for p in cfg.probes]:
             raise ConfigError(f"probe '{m.probe}' is not among the probes: {', '.join(p.name for p in cfg.probes) or 'none'}",
                               source=source, key=f"metrics[{i}].probe")

@@ -12,6 +12,7 @@ from taichi_sph.validation.metrics.dam_break import ColumnFallMetric, Hydrostati
 from taichi_sph.validation.metrics.drops import DropEllipseMetric
 from taichi_sph.validation.metrics.flows import CavityMetric, PoiseuilleMetric, TaylorGreenMetric
 from taichi_sph.validation.metrics.square_patch import RotatingSquareMetric
+from taichi_sph.validation.metrics.standing_wave import StandingWaveMetric
 
 METRICS: dict[str, type[MetricObserver]] = {
     "probe_pressure": ProbePressureMetric,
@@ -23,6 +24,7 @@ METRICS: dict[str, type[MetricObserver]] = {
     "cavity": CavityMetric,
     "drop_ellipse": DropEllipseMetric,
     "rotating_square": RotatingSquareMetric,
+    "standing_wave": StandingWaveMetric,
 }
 
 __all__ = ["METRICS", "MetricObserver", "make_metrics", "probe_value"]

@@ -10,6 +10,7 @@ import numpy as np
 
 from taichi_sph.config.schema import Config, Metric
 from taichi_sph.scene.bodies import FLUID
+from taichi_sph.validation.elevation import surface_elevation
 
 
 class MetricObserver:
@@ -35,9 +36,13 @@ def fluid_mask(state: dict) -> np.ndarray:
 
 
 def probe_value(state: dict, position, quantity: str, support: float, w_np) -> float:
-    """Shepard-interpolated fluid quantity at a point: sum_b q_b W_b V_b / sum_b W_b V_b."""
+    """Shepard-interpolated fluid quantity at a point: sum_b q_b W_b V_b / sum_b W_b V_b; `elevation`: the free
+    surface's height above the position's horizontal coordinates (validation/elevation.py, half-width = support)."""
     f = fluid_mask(state)
     x = state["x"][f]
+    if quantity == "elevation":
+        volume = state["mass"][f] / state["rho"][f]
+        return surface_elevation(x, volume, np.asarray(position, dtype=np.float64)[:-1], support)
     r = np.linalg.norm(x - np.asarray(position), axis=1)
     near = r < support
     if not near.any():

@@ -1,0 +1,124 @@
+"""Mechanical energy of a run, measured above its rest state.
+
+E = E_k + E_p + E_e: kinetic sum m |v|^2 / 2, potential of the body forces (gravity -sum m g . x, the central
+force sum m omega^2 |x - c|^2 / 2) and, for WCSPH, the elastic energy of the Tait equation of state,
+    e(rho) = int_rho0^rho p / r^2 dr = (B / rho0) [(rho / rho0)^(gamma - 1) / (gamma - 1) + rho0 / rho - gamma / (gamma - 1)].
+The rest state is the same fluid settled under its body forces: under gravity in a wall_box, the particles
+stacked in lattice layers from the floor (heaviest lowest), hydrostatically compressed; under a central force,
+the lattice disk/ball of the same count. E - E_rest is what a wave or a sloshing tank holds: a few 1e-4 of E_p
+itself, so a growth guard must look at it, not at E (Bonet & Lok 1999 on SPH energy conservation).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from taichi_sph.config import Config
+from taichi_sph.scene.lattice import lattice_sphere
+
+
+def tait_elastic_energy(rho: np.ndarray, rho0: float, b: float, gamma: float) -> np.ndarray:
+    """e(rho) per unit mass of the Tait equation p = B ((rho / rho0)^gamma - 1): 0 at rho0, >= 0 either side."""
+    s = np.asarray(rho, dtype=np.float64) / rho0
+    return (b / rho0) * (s ** (gamma - 1.0) / (gamma - 1.0) + 1.0 / s - gamma / (gamma - 1.0))
+
+
+def potential_energy(cfg: Config, x: np.ndarray, mass: np.ndarray) -> float:
+    """E_p = -sum m g . x + sum m omega^2 |x - c|^2 / 2 (gravity from the origin; the central force from its centre)."""
+    x = np.asarray(x, dtype=np.float64)
+    m = np.asarray(mass, dtype=np.float64)
+    e = -float(np.sum(m * (x @ np.asarray(cfg.gravity_vector, dtype=np.float64))))
+    omega = cfg.central_force.omega
+    if omega > 0:
+        r = x - np.asarray(cfg.central_force_center, dtype=np.float64)
+        e += 0.5 * omega * omega * float(np.sum(m * np.einsum("ij,ij->i", r, r)))
+    return e
+
+
+def elastic_energy(cfg: Config, rho: np.ndarray, mass: np.ndarray) -> float:
+    """E_e = sum m e(rho) for WCSPH (its density carries the compression); 0 for ISPH (incompressible)."""
+    if cfg.solver != "wcsph":
+        return 0.0
+    c0 = cfg.sound_speed
+    b = c0 * c0 * cfg.fluid.rho0 / cfg.fluid.gamma
+    return float(np.sum(np.asarray(mass, np.float64) * tait_elastic_energy(rho, cfg.fluid.rho0, b, cfg.fluid.gamma)))
+
+
+@dataclass(frozen=True)
+class RestState:
+    """The settled fluid's potential and elastic energy; `known` is False where no rest state is defined
+    (gravity along a periodic axis, a tilted gravity, no container under gravity)."""
+
+    potential: float
+    elastic: float
+    known: bool
+
+
+def _gravity_axis(cfg: Config) -> int | None:
+    g = np.asarray(cfg.gravity_vector, dtype=np.float64)
+    if not np.any(g):
+        return None
+    axes = np.flatnonzero(g)
+    return int(axes[0]) if len(axes) == 1 else -1
+
+
+def _container(cfg: Config):
+    """Inner box of the first wall_box, else the domain box."""
+    for b in cfg.bodies:
+        if b.type == "wall_box":
+            return np.asarray(b.lo, float), np.asarray(b.hi, float)
+    return np.asarray(cfg.domain.lo, float), np.asarray(cfg.domain.hi, float)
+
+
+def _layer_heights(cfg: Config, n: int, axis: int, down: float) -> np.ndarray:
+    """Heights above the floor (along -g) of n lattice sites stacked layer by layer in the container."""
+    dx = cfg.particles.dx
+    lo, hi = _container(cfg)
+    per_layer = 1
+    for a in range(cfg.dim):
+        if a != axis:
+            per_layer *= max(1, int(round((hi[a] - lo[a]) / dx)))
+    layer = np.arange(n) // per_layer
+    return (layer + 0.5) * dx, per_layer
+
+
+def rest_state(cfg: Config, mass: np.ndarray) -> RestState:
+    """E_p and E_e of the fluid settled under its body forces (module docstring)."""
+    m = np.sort(np.asarray(mass, dtype=np.float64))[::-1]  # heaviest lowest: the least potential
+    n = len(m)
+    rho0 = cfg.fluid.rho0
+    c0 = cfg.sound_speed
+    b = c0 * c0 * rho0 / cfg.fluid.gamma
+    axis = _gravity_axis(cfg)
+    omega = cfg.central_force.omega
+    if n == 0:
+        return RestState(0.0, 0.0, True)
+    if axis is None and omega == 0:
+        return RestState(0.0, 0.0, True)
+    if axis is not None and (axis < 0 or omega > 0 or cfg.periodic[axis] or cfg.gravity_ramp > 0):
+        return RestState(0.0, 0.0, False)
+    if axis is not None:
+        g = float(np.linalg.norm(cfg.gravity_vector))
+        sign = -1.0 if cfg.gravity_vector[axis] < 0 else 1.0
+        lo, hi = _container(cfg)
+        floor = lo[axis] if sign < 0 else hi[axis]
+        height, per_layer = _layer_heights(cfg, n, axis, sign)
+        top = (n / per_layer) * cfg.particles.dx  # the settled surface above the floor
+        coordinate = floor - sign * height  # along the axis
+        potential = float(np.sum(m * g * (-sign) * coordinate))
+        pressure = rho0 * g * np.maximum(top - height, 0.0)
+    else:
+        r_drop = math.sqrt(n * cfg.particles.dx ** cfg.dim / (math.pi if cfg.dim == 2 else 4.0 * math.pi / 3.0)) \
+            if cfg.dim in (2, 3) else 0.5 * n * cfg.particles.dx
+        pts = lattice_sphere(tuple([0.0] * cfg.dim), r_drop + 3.0 * cfg.particles.dx, cfg.particles.dx)
+        r = np.sort(np.linalg.norm(pts, axis=1))[:n]
+        potential = float(np.sum(m * 0.5 * omega * omega * r * r))
+        pressure = 0.5 * rho0 * omega * omega * np.maximum(r_drop * r_drop - r * r, 0.0)
+    elastic = 0.0
+    if cfg.solver == "wcsph":
+        rho = rho0 * (1.0 + pressure / b) ** (1.0 / cfg.fluid.gamma)
+        elastic = float(np.sum(m * tait_elastic_energy(rho, rho0, b, cfg.fluid.gamma)))
+    return RestState(potential, elastic, True)

@@ -1,0 +1,97 @@
+"""Linear standing wave in a tank: period, amplitude and energy against linear theory.
+
+Mode 1 of a tank of length L and depth d: k = pi / L, omega^2 = g k tanh(k d) (the dispersion relation), the
+surface eta(x, t) = a cos(k (x - x0)) sin(omega t) exp(-2 nu k^2 t) (viscous decay of a free-surface wave,
+Lamb 1932 s. 348). The run starts at the phase eta = 0 with the potential-flow velocity of that phase
+(configs/standing_wave_2d.yaml). Elevations are read next to both walls (validation/elevation.py), relative to their
+reading at the start (where theory gives eta = 0): that removes the lattice's partition-of-unity offset.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from taichi_sph.config.schema import Config, Metric
+from taichi_sph.errors import ConfigError
+from taichi_sph.validation.elevation import surface_elevation
+from taichi_sph.validation.energy import elastic_energy, potential_energy, rest_state
+from taichi_sph.validation.metrics.base import MetricObserver, fluid_mask
+
+
+def standing_wave_omega(length: float, depth: float, g: float) -> float:
+    """omega = sqrt(g k tanh(k d)), k = pi / L (the first sloshing mode)."""
+    k = math.pi / length
+    return math.sqrt(g * k * math.tanh(k * depth))
+
+
+def zero_crossings(t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Times where y changes sign (linear interpolation between samples)."""
+    s = np.sign(y)
+    i = np.flatnonzero(s[:-1] * s[1:] < 0)
+    return t[i] - y[i] * (t[i + 1] - t[i]) / (y[i + 1] - y[i])
+
+
+def observed_period(t: np.ndarray, y: np.ndarray) -> float:
+    """Twice the mean spacing of successive zero crossings (nan with fewer than two)."""
+    z = zero_crossings(t, y)
+    return float(2.0 * np.mean(np.diff(z))) if len(z) >= 2 else float("nan")
+
+
+class StandingWaveMetric(MetricObserver):
+    """Errors of a standing wave (module docstring): period, amplitude after the run, energy per period, symmetry."""
+
+    def __init__(self, cfg: Config, spec: Metric) -> None:
+        super().__init__(cfg, spec)
+        if spec.depth is None or spec.amplitude is None:
+            raise ConfigError("a standing_wave metric needs 'depth' and 'amplitude'", key="metrics[].depth")
+        g = float(np.linalg.norm(cfg.gravity_vector))
+        self.k = math.pi / spec.width
+        self.omega = standing_wave_omega(spec.width, spec.depth, g)
+        self.decay = 2.0 * cfg.fluid.nu * self.k * self.k
+        self.margin = 3.0 * cfg.particles.dx  # the elevation kernel's half-width: keep it inside the tank
+        self.x_left = spec.origin + self.margin
+        self.x_right = spec.origin + spec.width - self.margin
+        self.rows: list[tuple[float, float, float, float]] = []
+        self.rest = None
+        self.offset: tuple[float, float] | None = None
+
+    def columns(self) -> list[str]:
+        return ["eta_left", "eta_right", "eta_theory_left"]
+
+    def theory(self, x: float, t: float) -> float:
+        return self.spec.amplitude * math.cos(self.k * (x - self.spec.origin)) * math.sin(self.omega * t) * math.exp(-self.decay * t)
+
+    def observe(self, t: float, state: dict) -> dict:
+        f = fluid_mask(state)
+        x, v, m, rho = state["x"][f], state["v"][f], state["mass"][f], state["rho"][f]
+        if self.rest is None:
+            self.rest = rest_state(self.cfg, m)
+        left = surface_elevation(x, m / rho, self.x_left, self.margin)
+        right = surface_elevation(x, m / rho, self.x_right, self.margin)
+        if self.offset is None:  # the lattice's partition-of-unity error (0.1% of the depth) and the rest level:
+            self.offset = (left - self.theory(self.x_left, t), right - self.theory(self.x_right, t))
+        left, right = left - self.offset[0], right - self.offset[1]
+        energy = (0.5 * float(np.sum(m * np.einsum("ij,ij->i", v, v))) + potential_energy(self.cfg, x, m)
+                  + elastic_energy(self.cfg, rho, m) - self.rest.potential - self.rest.elastic)
+        self.rows.append((t, left, right, energy))
+        return {"eta_left": left, "eta_right": right, "eta_theory_left": self.theory(self.x_left, t)}
+
+    def finish(self, state: dict) -> dict:
+        if len(self.rows) < 8:
+            return {"standing_wave_note": "run too short for the standing-wave metric"}
+        t, left, right, energy = (np.asarray(c) for c in zip(*self.rows))
+        period = 2.0 * math.pi / self.omega
+        p_left, p_right = observed_period(t, left), observed_period(t, -right)
+        # amplitude over the last full period against the theory's envelope at the same times
+        last = t >= t[-1] - period
+        amp = 0.5 * (np.ptp(left[last]) + np.ptp(right[last])) / 2.0
+        envelope = self.spec.amplitude * math.cos(self.k * self.margin) * math.exp(-self.decay * float(t[last].mean()))
+        full = t[-1] - t[0] >= period
+        # energy change per period: least-squares slope of E(t) over the run, relative to E(0)
+        slope = float(np.polyfit(t, energy, 1)[0]) if len(t) > 2 else float("nan")
+        return {"period_theory_s": period, "period_error": p_left / period - 1.0,
+                "period_asymmetry": abs(p_left - p_right) / period,
+                "amplitude_ratio": float(amp / envelope) if full else float("nan"),
+                "energy_change_per_period": slope * period / energy[0] if energy[0] > 0 else float("nan")}
