@@ -1,4 +1,4 @@
-"""mgcg: the cell-aggregation multigrid preconditioner of the PPE (physics/multigrid.py).
+"""mgcg: the cell-aggregation multigrid preconditioner of the PPE (linalg/multigrid/).
 
 What it must do: keep CG valid (the V-cycle applied as a matrix is symmetric positive definite) with
 Dirichlet free surfaces, Neumann walls and pure-Neumann (pinned) boxes, periodic axes, in 1D/2D/3D; give
@@ -238,7 +238,7 @@ def test_level_kernels_and_the_one_thread_cycle_apply_the_same_preconditioner(mo
 
 @pytest.mark.parametrize("method", ["mgcg", "cg"])
 def test_ppe_loop_schedules_give_bit_identical_runs(method):
-    """On the CPU every PPE reduction sums fixed blocks in a fixed order (physics/reduction.py), so the
+    """On the CPU every PPE reduction sums fixed blocks in a fixed order (linalg/reduction.py), so the
     one-thread and the thread-pool schedule (and the probe that times both) give the same run bit for bit.
     With parallel float atomics two dam-break runs drifted apart by ~3e-6 m."""
     from taichi_sph.solvers.registry import make_solver

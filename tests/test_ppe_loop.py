@@ -1,4 +1,4 @@
-"""The PPE iterations without per-iteration host synchronisation (physics/ppe.py): the stopping test runs
+"""The PPE iterations without per-iteration host synchronisation (linalg/ppe.py): the stopping test runs
 on the device after every iteration, the host reads the solve's state once per `isph.ppe.check_every`
 iterations, and iterations launched after convergence are empty, so the run does not depend on
 check_every, and a step costs the host a bounded number of launches and read-backs."""
@@ -111,7 +111,7 @@ def test_fused_iteration_equals_the_split_one(serial):
 
 
 def test_atomic_sums_of_the_gpu_path_converge_alike():
-    """On a GPU the PPE's reductions add atomically (physics/reduction.py), gated by the same device flag:
+    """On a GPU the PPE's reductions add atomically (linalg/reduction.py), gated by the same device flag:
     that path, forced on the CPU, stops within an iteration of the fixed-order one and gives the same
     pressure to the solve tolerance."""
     runs = {}

@@ -2,7 +2,7 @@
 
 WCSPH replays bit for bit. ISPH's PPE picks its loop schedule (serial or parallel) by timing its first
 steps; when the two summed in different orders a replay differed at rounding level (t by 2e-9 s, x by
-5e-7 m after 25 steps). The PPE's sums are now in a fixed order on either schedule (physics/reduction.py,
+5e-7 m after 25 steps). The PPE's sums are now in a fixed order on either schedule (linalg/reduction.py,
 tests/test_multigrid.py checks bit-identical runs); the bound here stays 1e-5 of each field's scale."""
 
 from __future__ import annotations
