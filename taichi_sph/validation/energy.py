@@ -17,7 +17,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from taichi_sph.config import Config
+from taichi_sph.scene.bodies import tait_b
 from taichi_sph.scene.lattice import lattice_sphere
+from taichi_sph.validation import diagnostics
 
 
 def tait_elastic_energy(rho: np.ndarray, rho0: float, b: float, gamma: float) -> np.ndarray:
@@ -30,7 +32,7 @@ def potential_energy(cfg: Config, x: np.ndarray, mass: np.ndarray) -> float:
     """E_p = -sum m g . x + sum m omega^2 |x - c|^2 / 2 (gravity from the origin; the central force from its centre)."""
     x = np.asarray(x, dtype=np.float64)
     m = np.asarray(mass, dtype=np.float64)
-    e = -float(np.sum(m * (x @ np.asarray(cfg.gravity_vector, dtype=np.float64))))
+    e = diagnostics.potential_energy(x, m, cfg.gravity_vector)
     omega = cfg.central_force.omega
     if omega > 0:
         r = x - np.asarray(cfg.central_force_center, dtype=np.float64)
@@ -42,8 +44,7 @@ def elastic_energy(cfg: Config, rho: np.ndarray, mass: np.ndarray) -> float:
     """E_e = sum m e(rho) for WCSPH (its density carries the compression); 0 for ISPH (incompressible)."""
     if cfg.solver != "wcsph":
         return 0.0
-    c0 = cfg.sound_speed
-    b = c0 * c0 * cfg.fluid.rho0 / cfg.fluid.gamma
+    b = tait_b(cfg.fluid.rho0, cfg.sound_speed, cfg.fluid.gamma)
     return float(np.sum(np.asarray(mass, np.float64) * tait_elastic_energy(rho, cfg.fluid.rho0, b, cfg.fluid.gamma)))
 
 
@@ -73,8 +74,9 @@ def _container(cfg: Config):
     return np.asarray(cfg.domain.lo, float), np.asarray(cfg.domain.hi, float)
 
 
-def _layer_heights(cfg: Config, n: int, axis: int, down: float) -> np.ndarray:
-    """Heights above the floor (along -g) of n lattice sites stacked layer by layer in the container."""
+def _layer_heights(cfg: Config, n: int, axis: int) -> tuple[np.ndarray, int]:
+    """Heights above the floor (along -g) of n lattice sites stacked layer by layer in the container, and the
+    sites per layer."""
     dx = cfg.particles.dx
     lo, hi = _container(cfg)
     per_layer = 1
@@ -90,8 +92,6 @@ def rest_state(cfg: Config, mass: np.ndarray) -> RestState:
     m = np.sort(np.asarray(mass, dtype=np.float64))[::-1]  # heaviest lowest: the least potential
     n = len(m)
     rho0 = cfg.fluid.rho0
-    c0 = cfg.sound_speed
-    b = c0 * c0 * rho0 / cfg.fluid.gamma
     axis = _gravity_axis(cfg)
     omega = cfg.central_force.omega
     if n == 0:
@@ -105,7 +105,7 @@ def rest_state(cfg: Config, mass: np.ndarray) -> RestState:
         sign = -1.0 if cfg.gravity_vector[axis] < 0 else 1.0
         lo, hi = _container(cfg)
         floor = lo[axis] if sign < 0 else hi[axis]
-        height, per_layer = _layer_heights(cfg, n, axis, sign)
+        height, per_layer = _layer_heights(cfg, n, axis)
         top = (n / per_layer) * cfg.particles.dx  # the settled surface above the floor
         coordinate = floor - sign * height  # along the axis
         potential = float(np.sum(m * g * (-sign) * coordinate))
@@ -119,6 +119,7 @@ def rest_state(cfg: Config, mass: np.ndarray) -> RestState:
         pressure = 0.5 * rho0 * omega * omega * np.maximum(r_drop * r_drop - r * r, 0.0)
     elastic = 0.0
     if cfg.solver == "wcsph":
+        b = tait_b(rho0, cfg.sound_speed, cfg.fluid.gamma)
         rho = rho0 * (1.0 + pressure / b) ** (1.0 / cfg.fluid.gamma)
-        elastic = float(np.sum(m * tait_elastic_energy(rho, rho0, b, cfg.fluid.gamma)))
+        elastic = elastic_energy(cfg, rho, m)
     return RestState(potential, elastic, True)

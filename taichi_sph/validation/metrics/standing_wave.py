@@ -15,6 +15,7 @@ import numpy as np
 
 from taichi_sph.config.schema import Config, Metric
 from taichi_sph.errors import ConfigError
+from taichi_sph.validation.diagnostics import kinetic_energy
 from taichi_sph.validation.elevation import surface_elevation
 from taichi_sph.validation.energy import elastic_energy, potential_energy, rest_state
 from taichi_sph.validation.metrics.base import MetricObserver, fluid_mask
@@ -73,7 +74,7 @@ class StandingWaveMetric(MetricObserver):
         if self.offset is None:  # the lattice's partition-of-unity error (0.1% of the depth) and the rest level:
             self.offset = (left - self.theory(self.x_left, t), right - self.theory(self.x_right, t))
         left, right = left - self.offset[0], right - self.offset[1]
-        energy = (0.5 * float(np.sum(m * np.einsum("ij,ij->i", v, v))) + potential_energy(self.cfg, x, m)
+        energy = (kinetic_energy(v, m) + potential_energy(self.cfg, x, m)
                   + elastic_energy(self.cfg, rho, m) - self.rest.potential - self.rest.elastic)
         self.rows.append((t, left, right, energy))
         return {"eta_left": left, "eta_right": right, "eta_theory_left": self.theory(self.x_left, t)}
