@@ -5,6 +5,7 @@ from __future__ import annotations
 EXIT_OK = 0
 EXIT_USAGE = 2
 EXIT_UNSTABLE = 3
+EXIT_NO_SPACE = 4
 EXIT_INTERRUPTED = 130
 
 
@@ -40,3 +41,15 @@ class RenderUnavailable(SPHError):
 class PreflightError(SPHError):
     """A run refused before anything is allocated: not enough memory, or a set-up that cannot give a
     meaningful result (a severe a-priori check). `--force` runs it anyway."""
+
+
+class FolderInUse(UsageError):
+    """A run folder whose run is still going (its run.lock names a live process): a second run, a resume or a
+    study case into it is refused, naming the pid (run/lock.py)."""
+
+
+class DiskFull(SPHError):
+    """The disk filled while a run wrote its folder: one line naming the path and the space needed, exit 4;
+    temporary files are removed, summary.json says `failed` and the last checkpoint is kept (run/disk.py)."""
+
+    exit_code: int = EXIT_NO_SPACE

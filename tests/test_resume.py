@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from test_cli import assert_user_error, cli
 
-from taichi_sph.run.checkpoint import CHECKPOINT_NAME, read_checkpoint
+from taichi_sph.run.checkpoint import CHECKPOINT_NAME, PREVIOUS_NAME, read_checkpoint
 from taichi_sph.run.output import load_snapshot, read_timeseries
 
 REPO = Path(__file__).resolve().parent.parent
@@ -161,10 +161,13 @@ BAD_RESUMES = {
     "t_end_before_the_checkpoint": (None, ["--t-end", "0.1"], ["--t-end 0.1 is not beyond the checkpoint at t = 0.2"]),
     "negative_t_end": (None, ["--t-end", "-1"], ["--t-end must be > 0, got -1"]),
     "unstable_run": (lambda d: set_status(d, "unstable"), [], ["the run became unstable", "--overwrite"]),
-    "killed_before_its_first_checkpoint": (lambda d: (set_status(d, "running"), (d / CHECKPOINT_NAME).unlink()), [],
+    "killed_before_its_first_checkpoint": (lambda d: (set_status(d, "running"), (d / CHECKPOINT_NAME).unlink(),
+                                                      (d / PREVIOUS_NAME).unlink()), [],
                                            ["no checkpoint.npz: the run stopped before its first checkpoint"]),
-    "corrupt_checkpoint": (lambda d: (set_status(d, "running"), (d / CHECKPOINT_NAME).write_bytes(b"PK\x03\x04 no")),
-                           [], ["checkpoint.npz: unreadable checkpoint"]),
+    # both: a corrupt newest one alone falls back to the previous one (test_run_safety.py)
+    "corrupt_checkpoints": (lambda d: (set_status(d, "running"), (d / CHECKPOINT_NAME).write_bytes(b"PK\x03\x04 no"),
+                                       (d / PREVIOUS_NAME).write_bytes(b"PK\x03\x04 no")),
+                            [], ["checkpoint.npz: unreadable checkpoint", "the previous one too"]),
     "not_a_run_folder": (lambda d: (d / "summary.json").unlink(), [], ["not a run folder (no summary.json"]),
 }
 

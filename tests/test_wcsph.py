@@ -136,7 +136,7 @@ def test_too_large_fixed_dt_is_caught_as_unstable(tmp_path):
     assert res.summary["status"] == "unstable"
     assert res.exit_code == 3
     assert res.summary["instability"]["criterion"] in ("density_error", "non_finite", "left_domain",
-                                                       "neighbour_overflow")
+                                                       "neighbour_overflow", "energy_growth")
     assert list((tmp_path / "run" / "snapshots").glob("*.npz"))
 
 

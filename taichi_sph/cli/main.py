@@ -1,7 +1,8 @@
 """`taichi-sph` command line: run | resume | view | check | list | compare | sweep | stability | bench | render | config-doc.
 
-User errors (bad config, bad arguments, missing driver) print one line and exit 2; an unstable
-run exits 3; Ctrl-C exits 130 with a checkpoint. Tracebacks are for bugs only.
+User errors (bad config, bad arguments, missing driver, a run folder in use) print one line and exit 2; an
+unstable run exits 3; a full disk exits 4 (checkpoint kept); Ctrl-C exits 130 with a checkpoint. Tracebacks are
+for bugs only.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import sys
 from pathlib import Path
 
 from taichi_sph.config.loader import config_from_args
-from taichi_sph.errors import EXIT_INTERRUPTED, PreflightError, SPHError, UsageError
+from taichi_sph.errors import EXIT_INTERRUPTED, FolderInUse, PreflightError, SPHError, UsageError
 
 
 class _Parser(argparse.ArgumentParser):
@@ -40,7 +41,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-render", action="store_true", help="skip frames and video (the renderer is not even imported)")
     p.add_argument("--explain", action="store_true", help="print the compiled-in features and the a-priori checks, then exit")
     p.add_argument("--force", action="store_true",
-                   help="run even when the memory pre-flight or a severe a-priori check refuses the set-up")
+                   help="run even when the memory or disk pre-flight or a severe a-priori check refuses the set-up")
     p.add_argument("--overwrite", action="store_true", help="replace the output of a previous run in the run folder")
     _add_common(p)
 
@@ -59,9 +60,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, help="close after this many frames (tests, measurements)")
     _add_common(p)
 
-    p = sub.add_parser("check", help="validate a config and print the a-priori warnings")
+    p = sub.add_parser("check", help="validate a config and print the memory and disk estimates and the warnings")
     p.add_argument("config")
     p.add_argument("--solver", choices=("wcsph", "isph"))
+    p.add_argument("--out", help="run folder whose free space to report (default renders/<config name>-<solver>)")
+    p.add_argument("--no-render", action="store_true", help="estimate without frames and video")
     _add_common(p)
 
     sub.add_parser("list", help="bundled configs with their descriptions")
@@ -101,8 +104,7 @@ def build_parser() -> argparse.ArgumentParser:
             p.add_argument("--solvers", default="wcsph,isph")
         if name in ("compare", "stability"):
             p.add_argument("--no-render", action="store_true")
-        if name in ("compare", "sweep"):
-            p.add_argument("--force", action="store_true", help="run even when the memory pre-flight refuses")
+        p.add_argument("--force", action="store_true", help="run even when the memory or disk pre-flight refuses")
         p.add_argument("--jobs", type=int, metavar="N",
                        help="cases at once in local processes (default: 1 on machines with <= 4 cores, else cores / 4)")
         p.add_argument("--cluster", metavar="auto|ray://HOST:PORT",
@@ -127,15 +129,26 @@ def cmd_run(args) -> int:
         for c in a_priori_checks(cfg):
             print(f"warning: {c.message}")
         return 0
+    from taichi_sph.run import disk
+    from taichi_sph.run.lock import in_use_message, live_holder
     from taichi_sph.run.output import RunFolder
     from taichi_sph.run.simulation import Simulation
-    out = Path(args.out) if args.out else Path("renders") / f"{cfg.name}-{cfg.solver}"
+    out = default_out(cfg, args.out)
+    holder = live_holder(out)
+    if holder is not None:
+        raise FolderInUse(in_use_message(out, holder))
+    disk.preflight([(cfg, out, not args.no_render and cfg.render.enabled)], force=args.force)
     previous = RunFolder(out).previous_run()
     if previous and not args.overwrite:
         hint = f"`taichi-sph resume {out}` continues it, " if "unfinished" in previous else ""
         raise UsageError(f"{out} already holds {previous}: {hint}--overwrite replaces it, --out DIR writes elsewhere")
     result = Simulation(cfg, out, render=not args.no_render, quiet=args.quiet).run()
     return _report(result, out, args.quiet)
+
+
+def default_out(cfg, out: str | None) -> Path:
+    """The run folder: --out, else renders/<config name>-<solver>."""
+    return Path(out) if out else Path("renders") / f"{cfg.name}-{cfg.solver}"
 
 
 def cmd_resume(args) -> int:
@@ -148,6 +161,8 @@ def cmd_resume(args) -> int:
     out = Path(args.run_dir)
     resume = load_resume(out, args.t_end)
     render = resume.meta["render"] and not args.no_render
+    if resume.fallback:
+        print(f"warning: {resume.fallback}", file=sys.stderr)
     if not args.force:  # severe checks were judged (or forced) when the run started
         _, line = memory_preflight(resume.cfg, render=render)
         if line:
@@ -178,18 +193,25 @@ def _report(result, out: Path, quiet: bool) -> int:
 
 
 def cmd_check(args) -> int:
-    """Validate, print the memory estimate and the warnings; a set-up `run` would refuse exits 2 with its line."""
+    """Validate, print the memory and disk estimates and the warnings; a set-up `run` would refuse exits 2 with
+    its line."""
+    from taichi_sph.run import disk
     from taichi_sph.run.checks import a_priori_checks, preflight
     from taichi_sph.run.memory import GIB, estimate, host_memory_available
     cfg = config_from_args(args)
+    render = cfg.render.enabled and not args.no_render
+    out = default_out(cfg, args.out)
     checks = a_priori_checks(cfg)
     print(f"{args.config}: valid ({cfg.solver}, dim {cfg.dim}, dx {cfg.particles.dx:g}, c0 {cfg.sound_speed:.4g} m/s)")
-    print(f"memory: {estimate(cfg, render=cfg.render.enabled).describe()} "
+    print(f"memory: {estimate(cfg, render=render).describe()} "
           f"({host_memory_available() / GIB:.1f} GiB host memory available)")
+    print(f"disk: {disk.estimate_output(cfg, render=render).describe()} "
+          f"({disk.free_bytes(out) / disk.MB:.1f} MB free in {disk.existing_parent(out)})")
     for c in checks:
         if not c.severe:
             print(f"warning: {c.message}")
-    preflight(cfg, render=cfg.render.enabled)
+    preflight(cfg, render=render)
+    disk.preflight([(cfg, out, render)])
     return 0
 
 

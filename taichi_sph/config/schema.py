@@ -231,6 +231,10 @@ class Time:
 class Guards:
     max_density_error: float = opt(0.2, "|rho - rho0| / rho0 beyond which the run is declared unstable", positive=True)
     check_every: int = opt(20, "steps between stability checks", minimum=1)
+    energy_growth: float | None = opt(0.1, "growth of the fluid's energy above its rest state (kinetic + potential + "
+                                           "WCSPH's elastic), as a fraction of its start, beyond which a run with no "
+                                           "energy input (no moving walls, gravity ramp or periodic body force) is "
+                                           "declared unstable; checked at output rows; null = off", minimum=0.0)
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,9 @@ class LoopState:
     last_checkpoint_t: float | None = None
     resumed_at: list = field(default_factory=list)
     observed_step: int = -1               # the step whose outputs were written last
+    energy_start: float | None = None     # energy above the rest state at the first output row (energy_watch.py)
+    energy_peak: float | None = None
+    energy_last: float | None = None
 
 
 @dataclass

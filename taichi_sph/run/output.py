@@ -34,7 +34,7 @@ SNAPSHOT_PREFIX = "snap_"
 PVD_NAME = "snapshots.pvd"
 # files of a previous run that must not survive into a new one (config.yaml is rewritten anyway)
 _STALE_FILES = ("config.yaml", "summary.json", "summary.json.tmp", "timeseries.csv", "checkpoint.npz",
-                "checkpoint.npz.tmp")
+                "checkpoint.npz.tmp", "checkpoint.prev.npz")
 _STALE_DIRS = ("snapshots", "frames")
 _STALE_GLOBS = ("video.*",)
 

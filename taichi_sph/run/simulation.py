@@ -21,8 +21,11 @@ from taichi_sph.config.loader import to_dict
 from taichi_sph.config.schema import Config
 from taichi_sph.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, RenderUnavailable
 from taichi_sph.run.checks import a_priori_checks
+from taichi_sph.run.disk import is_no_space, no_space_failure
+from taichi_sph.run.energy_watch import ENERGY_COLUMNS, EnergyWatch
 from taichi_sph.run.guards import culprit, guard_violation
 from taichi_sph.run.interrupt import sigint_calls
+from taichi_sph.run.lock import held
 from taichi_sph.run.loop_state import LoopState, RunResult
 from taichi_sph.run.output import Progress, RunFolder
 from taichi_sph.run.runtime import current_arch_name, init_taichi
@@ -54,7 +57,23 @@ class Simulation:
 
     # -- the run ------------------------------------------------------------------------------------
     def run(self, resume=None) -> RunResult:
-        """Run the scene to t_end (or continue a checkpointed run: `resume` from checkpoint.load_resume)."""
+        """Run the scene to t_end (or continue a checkpointed run: `resume` from checkpoint.load_resume), the run
+        folder locked to this process (run/lock.py); a full disk ends the run cleanly (DiskFull, run/disk.py)."""
+        with held(self.out_dir):
+            try:
+                return self._run(resume)
+            except (OSError, RuntimeError) as e:
+                if self.out_dir is None or not is_no_space(e):
+                    raise
+                try:
+                    if getattr(self, "series", None) is not None:
+                        self.series.close()  # a row it could not flush is cut back on resume
+                except OSError:
+                    pass
+                raise no_space_failure(e, self.out_dir, self.cfg, render=self.render_enabled) from None
+
+    def _run(self, resume) -> RunResult:
+        """The run itself: set-up, the step-batch loop, the finish."""
         self.solver, self.folder, self.loop = self._start(resume)
         self._open_outputs(resume)
         progress = Progress(self.cfg.time.t_end, self.solver.n, enabled=not self.quiet)
@@ -89,6 +108,7 @@ class Simulation:
         t_setup = time.perf_counter()
         solver = make_solver(cfg, arrays)
         self.metrics = make_metrics(cfg) if resume is None else pickle.loads(resume.meta["metrics"])
+        self.energy = EnergyWatch(cfg, arrays.mass[arrays.kind == FLUID])
         self.order_probe = OrderProbe(solver)
         # a checkpoint written before the particle-order diagnostics has no log: start one
         self.order_log = ParticleOrderLog(**(resume.meta.get("particle_order") or {}) if resume is not None else {})
@@ -124,7 +144,8 @@ class Simulation:
     def _open_outputs(self, resume) -> None:
         """The timeseries (appended to on a resume), the renderer, the frames so far, summary.json `running`."""
         cfg, solver, folder = self.cfg, self.solver, self.folder
-        columns = ["t", "step", "dt", "kinetic_energy", "max_speed", "max_density_error"] + ORDER_COLUMNS
+        columns = ["t", "step", "dt", "kinetic_energy", *ENERGY_COLUMNS, "max_speed", "max_density_error"]
+        columns += ORDER_COLUMNS
         columns += [p.name for p in cfg.probes] + [c for m in self.metrics for c in m.columns()]
         columns += list(solver.extra_timeseries().keys())
         self.series = folder.timeseries(columns, append=resume is not None) if folder else None
@@ -135,6 +156,7 @@ class Simulation:
             self._write_running()
         self.step_times: list[float] = []  # this segment's wall time per step (the first one's compile shows)
         self.last_good: dict | None = None  # the state at the last output time (an unstable run's result)
+        self.energy_gain: dict | None = None  # the energy guard's finding at the last output row
 
     def _start_renderer(self, solver):
         try:
@@ -162,6 +184,8 @@ class Simulation:
         solver, t_end = self.solver, self.cfg.time.t_end
         while True:
             self._outputs_due()
+            if self.energy_gain is not None:
+                return self._instability(self.energy_gain)
             if solver.t >= t_end - EPS_T or self._interrupted:
                 return None
             self._checkpoint_if_due()
@@ -188,6 +212,7 @@ class Simulation:
         if at_output:
             self._record_row(state)
             loop.next_out += cfg.output.every
+            self.energy_gain = self.energy.violation(loop)
         if at_frame:
             self._write_frame(state)
             loop.next_frame += cfg.render.every
@@ -211,6 +236,7 @@ class Simulation:
         f = state["kind"] == FLUID
         row = {"t": solver.t, "step": solver.step_count, "dt": dt,
                "kinetic_energy": diag.kinetic_energy(state["v"][f], state["mass"][f]),
+               **self.energy.measure(state, self.loop),
                "max_speed": diag.max_speed(state["v"][f]),
                "max_density_error": diag.max_density_error(state["rho"][f], cfg.fluid.rho0)}
         probes = {p.name: probe_value(state, p.position, p.quantity, solver.support, solver.kernel.w_np)
@@ -274,8 +300,11 @@ class Simulation:
         solver = self.solver
         self.stats = solver.read_stats()
         bad = guard_violation(self.cfg, solver, self.stats)
-        if bad is None:
-            return None
+        return None if bad is None else self._instability(bad)
+
+    def _instability(self, bad: dict) -> dict:
+        """The guard's finding with the step, time and culprit particle, logged."""
+        solver = self.solver
         state = solver.host_state()
         instability = {**bad, "step": solver.step_count, "t": solver.t,
                        "particle": culprit(self.cfg, state, bad["criterion"])}
@@ -344,6 +373,7 @@ class Simulation:
             "max_density_error_interior": self.order_log.interior_density_error,
             "errors": errors,
             "conservation": conservation(final, crossings, max(loop.max_wall_crossings, crossings)),
+            "energy": self.energy.summary(loop),
             "particle_order": self.order_log.summary(),
             "c0": solver.c0 if solver.name == "wcsph" else None,
             "features": solver.features.compiled_in(),

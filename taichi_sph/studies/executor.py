@@ -5,7 +5,9 @@ folder, in this process (`--jobs 1`), on a local process pool (`--jobs N`) or on
 The folders are the record: a case is finished when its summary.json says `ok` or `unstable`, and the
 study's report is assembled from the folders' summaries, so `--resume` runs only the cases whose folder
 lacks a finished summary. A case that raises, or whose worker process dies, comes back as status
-`failed` (traceback in its error.txt) and never stops the others.
+`failed` (traceback in its error.txt) and never stops the others; a folder that says `running` with no live
+process holding its lock reads `died` (run/lock.py). Before any case starts, a case folder in use by a live run
+refuses the study (naming the pid), and so does output that will not fit on the disk (run/disk.py, `--force`).
 
 Pool workers are started with 'spawn': each initialises its own Taichi runtime (a runtime must never
 be forked after ti.init). Every case is the same call, `run_case(cfg, run_dir)`, whatever runs it, so
@@ -28,7 +30,9 @@ from pathlib import Path
 from typing import Callable, Iterable
 
 from taichi_sph.config.schema import Config
-from taichi_sph.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, SPHError, UsageError
+from taichi_sph.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, FolderInUse, SPHError, UsageError
+from taichi_sph.run import disk
+from taichi_sph.run.lock import effective_status, in_use_message, live_holder
 from taichi_sph.run.output import RunFolder
 
 FINISHED = ("ok", "unstable")
@@ -49,12 +53,14 @@ class Job:
 @dataclass(frozen=True)
 class Dispatch:
     """How a study runs its cases: `jobs` local processes (1: in this process) or a Ray `cluster`
-    ("auto" or "ray://HOST:PORT"); `resume` skips cases whose folder holds a finished summary."""
+    ("auto" or "ray://HOST:PORT"); `resume` skips cases whose folder holds a finished summary; `force` runs
+    them even when their output will not fit on the disk."""
 
     jobs: int = 1
     cluster: str | None = None
     resume: bool = False
     quiet: bool = True
+    force: bool = False
 
 
 def default_jobs(cores: int | None = None) -> int:
@@ -97,12 +103,16 @@ def run_case(cfg: Config, out_dir: Path, *, render: bool = False, quiet: bool = 
     except KeyboardInterrupt:
         raise
     except Exception as e:  # noqa: BLE001 (reported in the summary, traceback kept on disk)
-        out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "error.txt").write_text(traceback.format_exc())
         message = str(e).splitlines()[0] if str(e) else ""
         summary = failed_summary(cfg, message if isinstance(e, SPHError) else f"{type(e).__name__}: {message}",
                                  getattr(e, "exit_code", 1))
-        RunFolder(out_dir).write_summary(summary)
+        if not isinstance(e, FolderInUse):  # the folder is another run's: leave it alone
+            try:
+                out_dir.mkdir(parents=True, exist_ok=True)
+                (out_dir / "error.txt").write_text(traceback.format_exc())
+                RunFolder(out_dir).write_summary(summary)
+            except OSError:  # a full disk: the run's own summary.json already says so, if it fitted
+                pass
     finally:
         try:
             release_runtime(cfg)
@@ -126,6 +136,7 @@ def read_case(run_dir: Path) -> dict | None:
     except (OSError, ValueError):
         return None
     summary["run_dir"] = str(run_dir)
+    summary["status"] = effective_status(run_dir, summary.get("status"))
     summary.setdefault("exit_code", _EXIT_CODES.get(summary.get("status"), 1))
     return summary
 
@@ -138,7 +149,10 @@ def is_finished(run_dir: Path) -> bool:
 
 def _record(job: Job, summary: dict) -> None:
     """Make sure the folder tells what happened: a case whose folder has no summary, the `running` one of
-    a dead worker, or one that disagrees with what came back (a stale one), gets the returned summary."""
+    a dead worker, or one that disagrees with what came back (a stale one), gets the returned summary; a folder
+    another live run holds is left alone."""
+    if live_holder(job.run_dir) is not None:
+        return
     s = read_case(job.run_dir)
     if s is None or s.get("status") != summary.get("status"):
         job.run_dir.mkdir(parents=True, exist_ok=True)
@@ -326,11 +340,22 @@ def dispatch_from_args(args) -> Dispatch:
     """--jobs / --cluster / --resume / --quiet of a study command, checked."""
     jobs = args.jobs if getattr(args, "jobs", None) is not None else default_jobs()
     dispatch = Dispatch(jobs=jobs, cluster=getattr(args, "cluster", None), resume=getattr(args, "resume", False),
-                        quiet=getattr(args, "quiet", False))
+                        quiet=getattr(args, "quiet", False), force=getattr(args, "force", False))
     if dispatch.cluster is not None and getattr(args, "jobs", None) is not None:
         raise UsageError("--jobs and --cluster exclude each other (the cluster decides how many cases run at once)")
     check_dispatch(dispatch)
     return dispatch
+
+
+def check_folders(jobs: list[Job], *, force: bool = False) -> None:
+    """Refuse a study before any case starts: a case folder a live run holds (FolderInUse, naming the pid),
+    or output that will not fit on the disk, summed over the cases (PreflightError unless `force`)."""
+    for job in jobs:
+        holder = live_holder(job.run_dir)
+        if holder is not None:
+            raise FolderInUse(f"case {job.name}: " + in_use_message(job.run_dir, holder))
+    if jobs:
+        disk.preflight([(job.cfg, job.run_dir, job.render) for job in jobs], force=force)
 
 
 def run_cases(jobs: Iterable[Job], dispatch: Dispatch = Dispatch(), label: str = "study") -> dict[str, dict]:
@@ -343,6 +368,7 @@ def run_cases(jobs: Iterable[Job], dispatch: Dispatch = Dispatch(), label: str =
         raise ValueError(f"case names must be unique: {names}")
     check_dispatch(dispatch)
     todo = [j for j in jobs if not (dispatch.resume and is_finished(j.run_dir))]
+    check_folders(todo, force=dispatch.force)
     reached = {j.name for j in jobs} - {j.name for j in todo}
     workers = max(1, len(todo) if dispatch.cluster else min(dispatch.jobs, len(todo)))
     progress = StudyProgress(label, len(jobs), workers, enabled=not dispatch.quiet)

@@ -24,13 +24,13 @@ from taichi_sph.run.checks import severe_checks, time_step_limits
 from taichi_sph.run.output import to_jsonable
 from taichi_sph.studies.compare import derive_config
 from taichi_sph.studies.executor import Dispatch, Job, dispatch_from_args, run_case, run_cases
-from taichi_sph.studies.stability_energy import energy_change, min_spacing, run_measurements, total_energy
+from taichi_sph.studies.stability_energy import energy_change, min_spacing, run_measurements
 from taichi_sph.studies.stability_report import stability_markdown
 from taichi_sph.studies.stability_verdicts import as_expected, classify
 from taichi_sph.studies.table import format_value, is_number
 
 __all__ = ["BATTERY", "Case", "as_expected", "case_config", "classify", "cmd_stability", "energy_change", "min_spacing",
-           "run_one", "run_stability", "stability_markdown", "stability_map", "total_energy"]
+           "run_one", "run_stability", "stability_markdown", "stability_map"]
 
 SNAPSHOTS_PER_RUN = 20
 
@@ -71,6 +71,8 @@ BATTERY: tuple[Case, ...] = (
     Case("tension_wendland", "tension.yaml", ("particles.kernel=wendland_c2",), expect="either",
          note="stretched patch, negative pressure, Wendland C2"),
     Case("thin_layer", "thin_layer.yaml", note="4 cm layer at dx = 4 mm (3400 particles), small dt"),
+    Case("standing_wave", "wave.yaml", note="linear standing wave, amplitude 2% of the depth: no energy input, "
+                                             "the energy above rest must not grow"),
 )
 
 MAP_SCENE = "drop.yaml"

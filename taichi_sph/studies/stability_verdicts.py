@@ -5,7 +5,7 @@
              so every refusal is backed by evidence.
 - `unstable` a guard fired during the run (non-finite state, particles leaving the domain, neighbour
              overflow, density error beyond the guard), or the run "finished" with garbage: density
-             error beyond the guard at an output time, total energy grown by more than
+             error beyond the guard at an output time, energy above rest grown by more than
              ENERGY_GROWTH_LIMIT, fluid through the walls, or fluid particles collapsed onto each
              other (closer than CLUMPING_LIMIT x dx: the tensile instability's pairs).
 - `stable`   none of that.
@@ -62,7 +62,7 @@ def classify(summary: dict | None, *, severe: list | tuple = (), guard: float = 
         return Verdict("unstable", "non_finite", "non-finite energy in a snapshot")
     if is_number(growth) and growth > ENERGY_GROWTH_LIMIT:
         return Verdict("unstable", "energy_growth",
-                       f"finished, but kinetic + potential energy grew by {growth:.0%} (> {ENERGY_GROWTH_LIMIT:.0%})")
+                       f"finished, but its energy above rest grew by {growth:.0%} (> {ENERGY_GROWTH_LIMIT:.0%})")
     crossings = summary.get("conservation", {}).get("wall_crossings") or 0
     n_fluid = summary.get("n_fluid") or 0
     if n_fluid and crossings > max(1, WALL_PENETRATION_LIMIT * n_fluid):

@@ -123,3 +123,32 @@ def rest_state(cfg: Config, mass: np.ndarray) -> RestState:
         rho = rho0 * (1.0 + pressure / b) ** (1.0 / cfg.fluid.gamma)
         elastic = elastic_energy(cfg, rho, m)
     return RestState(potential, elastic, True)
+
+
+def energy_input(cfg: Config) -> str | None:
+    """Why energy may enter this scene's fluid (then growth above rest is no instability); None for a closed one:
+    moving walls, a gravity ramp, a body force along a periodic axis (a driven channel), or no rest state."""
+    for b in cfg.bodies:
+        if b.type.startswith("wall") and b.velocity is not None and any(
+                not (isinstance(c, (int, float)) and c == 0) for c in b.velocity):
+            return "moving walls"
+    if cfg.gravity_ramp > 0:
+        return "a gravity ramp"
+    g = np.asarray(cfg.gravity_vector, dtype=np.float64)
+    if any(g[a] != 0 and cfg.periodic[a] for a in range(cfg.dim)):
+        return "a body force along a periodic axis"
+    if _gravity_axis(cfg) == -1 or (_gravity_axis(cfg) is not None and cfg.central_force.omega > 0):
+        return "no rest state (tilted gravity, or gravity with a central force)"
+    return None
+
+
+def energy_floor(cfg: Config, fluid_mass: float) -> float:
+    """The energy too small to call growth: M (3e-3 (|g| + omega^2 L) dx + 1e-6 U^2 / 2), the work of the body
+    forces over 0.3% of dx plus a millionth of the kinetic energy at the scene's speed U (L: the domain's size).
+    A WCSPH tank started at the ideal hydrostatic state settles 1.2e-3 dx above it (16 x 16 particles, h = 2 dx,
+    Fourtakas diffusion: +0.045 J = 1.2e-3 M g dx, then flat): a settling, not a growth."""
+    g = float(np.linalg.norm(cfg.gravity_vector))
+    size = float(np.linalg.norm(np.asarray(cfg.domain.hi, float) - np.asarray(cfg.domain.lo, float)))
+    omega = cfg.central_force.omega
+    u = cfg.expected_speed
+    return fluid_mass * (3e-3 * (g + omega * omega * size) * cfg.particles.dx + 0.5e-6 * u * u)

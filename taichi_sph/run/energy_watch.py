@@ -1,0 +1,76 @@
+"""The energy guard: the fluid's mechanical energy above its rest state (validation/energy.py) at every output
+row, its start, peak and last value kept in the loop state, and the growth that ends a run with no energy input
+"unstable" (`guards.energy_growth`):
+    E(t) - E_rest > (1 + growth) (E(0) - E_rest) + floor,
+floor = energy_floor (a thousandth of the body forces' work over dx, a millionth of the kinetic energy at the
+scene's speed). A closed flow only loses energy to viscosity, diffusion and impacts; a gain is the scheme's."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from taichi_sph.config.schema import Config
+from taichi_sph.run.loop_state import LoopState
+from taichi_sph.scene.bodies import FLUID
+from taichi_sph.validation import diagnostics
+from taichi_sph.validation.energy import elastic_energy, energy_floor, energy_input, potential_energy, rest_state
+
+ENERGY_COLUMNS = ["potential_energy", "elastic_energy", "energy_above_rest"]
+
+
+class EnergyWatch:
+    """Measures E - E_rest on host states and judges its growth (module docstring)."""
+
+    def __init__(self, cfg: Config, fluid_mass: np.ndarray) -> None:
+        self.cfg = cfg
+        self.rest = rest_state(cfg, fluid_mass)
+        self.floor = energy_floor(cfg, float(np.sum(fluid_mass, dtype=np.float64)))
+        self.input = energy_input(cfg)
+
+    @property
+    def guarded(self) -> bool:
+        return self.cfg.guards.energy_growth is not None and self.input is None
+
+    def measure(self, state: dict, loop: LoopState) -> dict:
+        """The timeseries columns of this state; the loop's start/peak/last energies updated."""
+        f = state["kind"] == FLUID
+        m = state["mass"][f]
+        potential = potential_energy(self.cfg, state["x"][f], m)
+        elastic = elastic_energy(self.cfg, state["rho"][f], m)
+        above = diagnostics.kinetic_energy(state["v"][f], m) + potential + elastic \
+            - self.rest.potential - self.rest.elastic
+        if loop.energy_start is None:
+            loop.energy_start = loop.energy_peak = above
+        if not np.isfinite(above):
+            loop.energy_peak = float("inf")
+        else:
+            loop.energy_peak = max(loop.energy_peak, above)
+        loop.energy_last = above
+        return {"potential_energy": potential, "elastic_energy": elastic, "energy_above_rest": above}
+
+    def violation(self, loop: LoopState) -> dict | None:
+        """{criterion, detail} when the last measured energy grew past the bound; None otherwise or unguarded."""
+        if not self.guarded or loop.energy_start is None or loop.energy_last is None:
+            return None
+        growth = self.cfg.guards.energy_growth
+        bound = (1.0 + growth) * max(loop.energy_start, 0.0) + self.floor
+        if np.isfinite(loop.energy_last) and loop.energy_last <= bound:
+            return None
+        return {"criterion": "energy_growth",
+                "detail": f"energy above rest {loop.energy_last:.4g} J > {bound:.4g} J = (1 + guards.energy_growth "
+                          f"{growth:g}) x its start {loop.energy_start:.4g} J + floor {self.floor:.3g} J, with no "
+                          f"energy input"}
+
+    def summary(self, loop: LoopState) -> dict:
+        """summary.json's `energy` block: above rest at the start, the peak and the end, the drift relative to the
+        start, and whether the guard watched this run (and why not)."""
+        start, peak, last = loop.energy_start, loop.energy_peak, loop.energy_last
+        scale = max(abs(start), self.floor) if start is not None else None
+        return {
+            "above_rest_start": start, "above_rest_peak": peak, "above_rest_end": last,
+            "drift": (last - start) / scale if scale else None,
+            "growth": (peak - start) / scale if scale else None,
+            "rest_potential": self.rest.potential, "rest_elastic": self.rest.elastic, "floor": self.floor,
+            "guard": "on" if self.guarded else
+                     f"off: {self.input}" if self.input else "off: guards.energy_growth is null",
+        }

@@ -1,0 +1,94 @@
+"""The energy guard (run/energy_watch.py): where energy enters a scene, the floor, the bound, and the summary block."""
+
+import math
+
+import numpy as np
+import pytest
+
+from taichi_sph.config import load_config
+from taichi_sph.config.loader import bundled_configs_dir
+from taichi_sph.run.energy_watch import EnergyWatch
+from taichi_sph.run.loop_state import LoopState
+from taichi_sph.scene.bodies import FLUID, build_particles
+from taichi_sph.validation.energy import energy_floor, energy_input
+
+CONFIGS = bundled_configs_dir()
+
+
+@pytest.mark.parametrize("scene, reason", [
+    ("cavity_2d.yaml", "moving walls"),
+    ("poiseuille_2d.yaml", "a body force along a periodic axis"),
+    ("standing_wave_2d.yaml", None), ("dam_break_2d.yaml", None), ("taylor_green_2d.yaml", None),
+    ("oscillating_drop_2d.yaml", None), ("hydrostatic_2d.yaml", None),
+])
+def test_energy_input_names_what_feeds_the_fluid(scene, reason):
+    assert energy_input(load_config(CONFIGS / scene)) == reason
+
+
+def test_a_gravity_ramp_is_an_energy_input():
+    assert energy_input(load_config(CONFIGS / "dam_break_2d.yaml", ["gravity_ramp=0.1"])) == "a gravity ramp"
+
+
+def test_the_floor_is_gravity_s_work_over_a_three_hundredth_of_dx_plus_a_millionth_of_the_kinetic_scale():
+    cfg = load_config(CONFIGS / "standing_wave_2d.yaml")  # g 9.81, dx 0.025, U 4.43, no central force
+    assert energy_floor(cfg, 2000.0) == pytest.approx(2000.0 * (3e-3 * 9.81 * 0.025 + 0.5e-6 * 4.43 ** 2))
+
+
+def watch_and_rows(scene, overrides=()):
+    cfg = load_config(CONFIGS / scene, list(overrides))
+    a = build_particles(cfg)
+    f = a.kind == FLUID
+    state = {"x": a.x, "v": a.v, "rho": a.rho, "mass": a.mass, "kind": a.kind}
+    return EnergyWatch(cfg, a.mass[f]), state
+
+
+def test_the_wave_starts_with_its_energy_and_trips_past_the_bound():
+    watch, state = watch_and_rows("standing_wave_2d.yaml")
+    loop = LoopState()
+    row = watch.measure(state, loop)
+    e0 = row["energy_above_rest"]
+    assert e0 == pytest.approx(1000.0 * 9.81 * 0.02 ** 2 * 2.0 / 4.0, rel=0.02) and loop.energy_start == e0
+    assert watch.violation(loop) is None
+    bound = 1.1 * e0 + watch.floor
+    loop.energy_last = 0.999 * bound
+    assert watch.violation(loop) is None
+    loop.energy_last = 1.001 * bound
+    bad = watch.violation(loop)
+    assert bad["criterion"] == "energy_growth" and "guards.energy_growth 0.1" in bad["detail"]
+    loop.energy_last = math.nan
+    assert watch.violation(loop)["criterion"] == "energy_growth"
+
+
+def test_the_peak_follows_the_rows_and_the_summary_scales_by_the_start():
+    watch, state = watch_and_rows("standing_wave_2d.yaml")
+    loop = LoopState()
+    e0 = watch.measure(state, loop)["energy_above_rest"]
+    raised = dict(state, v=state["v"] * math.sqrt(2.0))  # kinetic energy doubled; the wave starts with all of it kinetic
+    e1 = watch.measure(raised, loop)["energy_above_rest"]
+    watch.measure(state, loop)
+    s = watch.summary(loop)
+    assert e1 == pytest.approx(2.0 * e0, rel=1e-6)
+    assert s["above_rest_peak"] == pytest.approx(e1) and s["above_rest_end"] == pytest.approx(e0)
+    assert s["growth"] == pytest.approx(1.0, rel=1e-6) and s["drift"] == pytest.approx(0.0, abs=1e-9)
+    assert s["guard"] == "on"
+
+
+def test_an_energy_input_or_null_turns_the_guard_off_and_says_why():
+    watch, state = watch_and_rows("cavity_2d.yaml")
+    loop = LoopState()
+    watch.measure(state, loop)
+    loop.energy_last = 1e9
+    assert watch.violation(loop) is None and watch.summary(loop)["guard"] == "off: moving walls"
+    watch, state = watch_and_rows("standing_wave_2d.yaml", ["guards.energy_growth=null"])
+    watch.measure(state, loop := LoopState())
+    loop.energy_last = 1e9
+    assert watch.violation(loop) is None and watch.summary(loop)["guard"] == "off: guards.energy_growth is null"
+
+
+def test_wcsph_rows_carry_the_elastic_energy_and_isph_rows_none():
+    for solver in ("wcsph", "isph"):
+        watch, state = watch_and_rows("hydrostatic_2d.yaml", [f"solver={solver}"])
+        row = watch.measure(state, LoopState())
+        assert (row["elastic_energy"] > 0) == (solver == "wcsph")
+        assert abs(row["energy_above_rest"]) < 1e-9 * abs(row["potential_energy"])
+        assert np.isfinite(list(row.values())).all()
