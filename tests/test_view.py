@@ -7,6 +7,7 @@ window that cannot start ends its whole process.
 
 from __future__ import annotations
 
+import json
 import os
 import select
 import shutil
@@ -235,3 +236,25 @@ def test_stepping_stops_and_pauses_at_t_end():
     assert v.solver.t == pytest.approx(0.01, abs=1e-12)
     v.on_key(" ")
     assert v.paused, "nothing left to run: space does not resume"
+
+
+def test_realtime_view_writes_the_rtf_and_frame_rate(xvfb_display, tmp_path):
+    """`view --realtime --frames N` under Xvfb: the choice line, then the achieved RTF and frames per wall second
+    printed and in the record folder's realtime.json; simulated time never ahead of the wall clock."""
+    out = tmp_path / "rt"
+    env_cache = {"TAICHI_SPH_CACHE": str(tmp_path / "cache")}
+    args = [str(ROOT / "configs/dam_break_2d.yaml"), "--realtime", "--solver", "wcsph", "--set",
+            "realtime.min_particles_across=4", "--set", "render.width=480", "--set", "render.height=270",
+            "--frames", "12", "--record", "--out", str(out), "--set", "render.video=none"]
+    os.environ.update(env_cache)
+    try:
+        done = _view(args, xvfb_display, tmp_path)
+    finally:
+        os.environ.pop("TAICHI_SPH_CACHE")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "measuring wcsph at dx 0.25" in done.stdout  # the coarsest allowed: 1 m column / 4
+    assert any(line.startswith("dx ") and "wcsph, predicted RTF" in line for line in done.stdout.splitlines())
+    assert "realtime: achieved RTF" in done.stdout and "frames/s" in done.stdout
+    report = json.loads((out / "realtime.json").read_text())
+    assert report["frames_per_s"] > 0 and report["achieved_rtf"] > 0 and report["sim_ahead_ms"] < 1.0
+    assert (tmp_path / "cache" / "realtime.json").is_file()

@@ -29,13 +29,19 @@ def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--quiet", action="store_true", help="no progress bar or log lines")
 
 
+REALTIME_HELP = ("run at the finest dx this machine keeps in real time (measured once per scene and solver, "
+                 "cached in ~/.cache/taichi_sph), not finer than the scene's realtime.min_particles_across allows")
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="taichi-sph", description="SPH fluid simulation (WCSPH and ISPH) in Taichi, driven from YAML.")
     sub = parser.add_subparsers(dest="command", parser_class=_Parser, metavar="COMMAND")
 
     p = sub.add_parser("run", help="run a scene")
     p.add_argument("config", help="YAML config file (see `taichi-sph list`)")
-    p.add_argument("--solver", choices=("wcsph", "isph"), help="override the config's solver")
+    p.add_argument("--solver", choices=("wcsph", "isph", "auto"),
+                   help="override the config's solver (auto, with --realtime: the one reaching the finer dx)")
+    p.add_argument("--realtime", action="store_true", help=REALTIME_HELP)
     p.add_argument("--out", help="run folder (default renders/<config name>-<solver>)")
     p.add_argument("--t-end", type=float, help="simulated end time [s]")
     p.add_argument("--no-render", action="store_true", help="skip frames and video (the renderer is not even imported)")
@@ -54,7 +60,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("view", help="run a scene live in a window, with controls (needs a display)")
     p.add_argument("config", help="YAML config file (see `taichi-sph list`)")
-    p.add_argument("--solver", choices=("wcsph", "isph"), help="override the config's solver")
+    p.add_argument("--solver", choices=("wcsph", "isph", "auto"),
+                   help="override the config's solver (auto, with --realtime: the one reaching the finer dx)")
+    p.add_argument("--realtime", action="store_true",
+                   help=REALTIME_HELP + "; the window keeps pace with the wall clock and reports the RTF reached")
     p.add_argument("--record", action="store_true", help="write the shown frames, video and final state to a run folder")
     p.add_argument("--out", help="run folder for --record (default renders/<config name>-<solver>-view)")
     p.add_argument("--frames", type=int, help="close after this many frames (tests, measurements)")
@@ -62,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("check", help="validate a config and print the memory and disk estimates and the warnings")
     p.add_argument("config")
-    p.add_argument("--solver", choices=("wcsph", "isph"))
+    p.add_argument("--solver", choices=("wcsph", "isph", "auto"), help="override the config's solver (auto: with --realtime "
+                                                                      "of run and view only)")
     p.add_argument("--out", help="run folder whose free space to report (default renders/<config name>-<solver>)")
     p.add_argument("--no-render", action="store_true", help="estimate without frames and video")
     _add_common(p)
@@ -115,9 +125,32 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def realtime_config(args):
+    """--realtime's config (with its own solver under --solver auto) and the solvers it weighs."""
+    if args.solver != "auto":
+        cfg = config_from_args(args)
+        return cfg, [cfg.solver]
+    args.solver = None
+    try:
+        return config_from_args(args), ["wcsph", "isph"]
+    finally:
+        args.solver = "auto"
+
+
 def cmd_run(args) -> int:
     from taichi_sph.run.checks import a_priori_checks, preflight
-    cfg = config_from_args(args)
+    choice = None
+    if args.realtime:
+        from taichi_sph.run.realtime_measure import choose
+        cfg, solvers = realtime_config(args)
+        choice = choose(cfg, solvers, view=False, log=(lambda *a: None) if args.quiet else print)
+        if not args.quiet:
+            print(choice.line)
+        cfg = choice.cfg
+    elif args.solver == "auto":
+        raise UsageError("--solver auto chooses by real time: add --realtime")
+    else:
+        cfg = config_from_args(args)
     preflight(cfg, force=args.force, render=not args.no_render and cfg.render.enabled)
     if args.explain:
         from taichi_sph.scene.bodies import build_particles
@@ -143,7 +176,22 @@ def cmd_run(args) -> int:
         hint = f"`taichi-sph resume {out}` continues it, " if "unfinished" in previous else ""
         raise UsageError(f"{out} already holds {previous}: {hint}--overwrite replaces it, --out DIR writes elsewhere")
     result = Simulation(cfg, out, render=not args.no_render, quiet=args.quiet).run()
+    if choice is not None:
+        _realtime_report(choice, result.summary, out, args.quiet)
     return _report(result, out, args.quiet)
+
+
+def _realtime_report(choice, s: dict, out: Path, quiet: bool) -> None:
+    """--realtime: the RTF reached (simulated s per wall s of stepping, compile apart) against the prediction,
+    printed and written to the run folder's realtime.json."""
+    import json
+    achieved = s["t_end"] / max(s["wall_time_s"], 1e-9)
+    report = {"choice": choice.line, "dx": choice.pick.cand.dx, "solver": choice.pick.solver,
+              "predicted_rtf": choice.pick.rtf, "achieved_rtf": achieved, "reaches": choice.pick.reaches}
+    (out / "realtime.json").write_text(json.dumps(report, indent=1))
+    if not quiet:
+        print(f"realtime: achieved RTF {achieved:.2f} (t = {s['t_end']:.4g} s in {s['wall_time_s']:.1f} s, compile "
+              f"apart) vs predicted {choice.pick.rtf:.2f}")
 
 
 def default_out(cfg, out: str | None) -> Path:
@@ -198,6 +246,8 @@ def cmd_check(args) -> int:
     from taichi_sph.run import disk
     from taichi_sph.run.checks import a_priori_checks, preflight
     from taichi_sph.run.memory import GIB, estimate, host_memory_available
+    if args.solver == "auto":
+        raise UsageError("--solver auto chooses by real time: `taichi-sph run` or `view` with --realtime")
     cfg = config_from_args(args)
     render = cfg.render.enabled and not args.no_render
     out = default_out(cfg, args.out)

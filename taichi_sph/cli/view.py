@@ -5,11 +5,13 @@ particles, render.overlay for the label and colour bar, drawn here as quads inst
 an image), so a window frame and an offscreen frame of the same state agree pixel for pixel outside
 the controls panel. The panel reads out the time, the rates and what a frame costs (view_pacing.py);
 keys and buttons pause, step, reset, recolour. Reset rewinds the solver in memory (rewind.SolverMemento).
-Without a display `view` fails with one line (view_display.py).
+Without a display `view` fails with one line (view_display.py). With --realtime the spacing is chosen for
+this machine (run/realtime_measure.py) and the frames step only up to the wall clock (view_pacing.WallClock).
 """
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from pathlib import Path
@@ -17,7 +19,17 @@ from pathlib import Path
 import numpy as np
 
 from taichi_sph.cli.view_display import display_problem, no_display_error
-from taichi_sph.cli.view_pacing import FRAME_BUDGET_S, FrameWriter, Rate, frame_cost_lines, run_report, step_for
+from taichi_sph.cli.view_pacing import (
+    FRAME_BUDGET_S,
+    FrameWriter,
+    Rate,
+    WallClock,
+    frame_cost_lines,
+    realtime_report,
+    run_report,
+    step_for,
+    step_until,
+)
 from taichi_sph.errors import UsageError
 from taichi_sph.run.rewind import SolverMemento
 
@@ -36,13 +48,17 @@ def panel_rect(layout) -> tuple[float, float, float, float]:
 
 class Viewer:
     """The live window of one scene. `frames`: stop after that many frames (tests, measurements);
-    `record_dir`: write the shown frames, the video and the final state there, as `run` does."""
+    `record_dir`: write the shown frames, the video and the final state there, as `run` does; `realtime`:
+    the --realtime choice (run.realtime_measure.Choice): paced to the wall clock, its solver reused if measured."""
 
     def __init__(self, cfg, *, frames: int | None = None, record_dir: Path | None = None, quiet: bool = False,
-                 config_arg: str = "CONFIG") -> None:
+                 config_arg: str = "CONFIG", realtime=None) -> None:
         from taichi_sph.render import RenderSettings
 
-        self.cfg, self.frames, self.quiet = cfg, frames, quiet
+        self.cfg, self.frames, self.quiet, self.realtime = cfg, frames, quiet, realtime
+        self.clock = WallClock()
+        self.behind = False
+        self.dt_guess = 0.0
         self.record_dir = Path(record_dir) if record_dir is not None else None
         self.config_arg = config_arg
         self.settings = RenderSettings.from_config(cfg.render)
@@ -78,8 +94,19 @@ class Viewer:
         from taichi_sph.run.runtime import init_taichi
 
         init_taichi(self.cfg.arch, self.cfg.precision)
-        self.solver = self._new_solver()
-        self.initial = SolverMemento(self.solver)  # reset rewinds to it: no second solver to compile
+        if self.realtime is not None and self.realtime.prepared is not None:
+            self.solver, self.initial = self.realtime.prepared  # measured at this dx: compiled, rewound
+        else:
+            self.solver = self._new_solver()
+            self.initial = SolverMemento(self.solver)  # reset rewinds to it: no second solver to compile
+        if self.realtime is not None:
+            from taichi_sph.run.realtime import steps_per_simulated_second
+
+            if self.realtime.prepared is None:  # compile the step now, not in the first paced frame
+                self.solver.advance(1, float("inf"), self.cfg.time.t_end)
+                self.initial.restore()
+
+            self.dt_guess = 1.0 / steps_per_simulated_second(self.cfg)
         self.layout = FrameLayout.for_size(self.settings.width, self.settings.height)
         self.window = scene.open_window(f"taichi-sph view: {self.cfg.name} ({self.cfg.solver})",
                                         self.layout.width, self.layout.height, show=True)
@@ -96,7 +123,15 @@ class Viewer:
         solver, t_end = self.solver, self.cfg.time.t_end
         budget = 0.0 if single else max(FRAME_BUDGET_S - self.draw_s - self.record_s, 0.0)
         t0 = time.perf_counter()
-        steps = step_for(solver, t_end, budget, single)
+        if self.realtime is not None and not single:
+            steps, budget = 0, max(budget, self.draw_s + self.record_s)  # stepping at least as long as drawing
+            if self.clock.started:
+                steps, caught_up, self.dt_guess = step_until(solver, t_end, self.clock.target(solver.t), budget,
+                                                             self.dt_guess)
+                self.behind = not caught_up
+                self.ahead_s = max(self.ahead_s, solver.t - self.clock.allowed())
+        else:
+            steps = step_for(solver, t_end, budget, single)
         self.step_s, self.steps_last = time.perf_counter() - t0, steps
         if solver.read_stats()["non_finite"] > 0:
             self.paused, self.status = True, "unstable: NaN (r: reset)"
@@ -140,6 +175,8 @@ class Viewer:
         fps, sps, rtf = self.rate.rates()
         s = self.solver
         lines = [f"t = {s.t:.4f} s, step {s.step_count}", self.status, f"{sps:.0f} steps/s, real time x{rtf:.2g}"]
+        if self.realtime is not None and not self.paused:
+            lines.append(f"BEHIND the wall clock (x{rtf:.2f})" if self.behind else "paced to the wall clock")
         lines += frame_cost_lines(fps, self.step_s, self.steps_last, self.draw_s, self.record_s,
                                   self.record_dir is not None, s.n, self.paused)
         lines.append(f"colour: {self.colour_by}, walls {'on' if self.drawer.show_walls else 'off'}")
@@ -172,6 +209,8 @@ class Viewer:
         if self.solver.t < self.cfg.time.t_end - 1e-12 and not self.status.startswith("unstable"):
             self.paused = not self.paused
             self.status = "paused" if self.paused else "running"
+            if not self.paused and self.clock.started:
+                self.clock.start(self.solver.t)  # the wall clock restarts from here
 
     def _in_panel(self, cursor) -> bool:
         x0, y0, w, h = self.panel
@@ -233,6 +272,8 @@ class Viewer:
             folder.write_config(to_dict(self.cfg))
         self.frames_written: list[Path] = []
         self.costs: tuple[list[float], list[float], list[float]] = ([], [], [])  # per frame: stepping, drawing, writing
+        self.trace: list[tuple] = []  # --realtime, per running frame after the clock started: wall, t, behind, costs
+        self.ahead_s = 0.0
         shown = 0
         wall0 = time.perf_counter()
         try:
@@ -250,7 +291,31 @@ class Viewer:
             self._finish_record(folder, self.frames_written)
         if not self.quiet and shown:
             print(run_report(shown, wall, *self.costs, folder is not None, self.solver.step_count, self.solver.t))
+        if self.realtime is not None and len(self.trace) > 1:
+            self._finish_realtime(folder)
         return 0
+
+    def _finish_realtime(self, folder) -> None:
+        """Print (and with --record write realtime.json) the achieved RTF and frame rate; keep this run's step
+        cost at its dx and its drawing time for the next choice (the measurement's correction)."""
+        from taichi_sph.run.realtime import Sample
+        from taichi_sph.run.realtime_measure import store
+
+        walls, ts, behind, step_costs, draw_costs = (list(v) for v in zip(*self.trace))
+        report = realtime_report(walls, ts, step_costs, draw_costs, behind, self.ahead_s, self.realtime.pick.rtf,
+                                 self.realtime.share)
+        report["choice"] = self.realtime.line
+        if not self.quiet:
+            print(report["line"])
+        if folder is not None:
+            (folder.path / "realtime.json").write_text(json.dumps(report, indent=1))
+        stepping, steps = sum(step_costs[1:]), self.steps_at_end - self.steps_at_start
+        its = getattr(self.solver, "iterations", [])[self.iterations_at_start:]
+        if steps >= 10 and stepping > 0.5:
+            ppe = (getattr(self.solver, "ppe_seconds", 0.0) - self.ppe_at_start) / steps
+            sample = Sample(self.solver.n, self.cfg.particles.dx, stepping / steps, min(ppe, stepping / steps),
+                            float(sum(its)) / len(its) if its else 0.0)
+            store(self.cfg, self.cfg.solver, sample, report["draw_ms"] / 1e3)
 
     def _frame(self, shown: int, folder, writer) -> None:
         """One frame: input, reset, the steps, drawing (and the panel), writing it (--record), showing it."""
@@ -260,6 +325,8 @@ class Viewer:
         if self._reset:
             self.initial.restore()  # the solver as it was before its first step
             self.paused, self.status, self._reset = False, "running", False
+            if self.clock.started:
+                self.clock.start(self.solver.t)
         if not self.paused or self._single:
             self._advance(self._single)
         else:
@@ -280,6 +347,23 @@ class Viewer:
         for costs, value in zip(self.costs, (self.step_s, self.draw_s, self.record_s)):
             costs.append(value)
         self.rate.add(self.solver.step_count, self.solver.t)
+        if self.realtime is not None:
+            self._pace()
+
+    def _pace(self) -> None:
+        """--realtime: start the wall clock after the first frame (compiling shaders), log the frame, and
+        sleep out the rest of the frame when the simulation has caught up with the wall."""
+        s = self.solver
+        if not self.clock.started:
+            self.clock.start(s.t)
+            self.steps_at_start, self.ppe_at_start = s.step_count, getattr(s, "ppe_seconds", 0.0)
+            self.iterations_at_start = len(getattr(s, "iterations", []))
+        elif not self.paused:
+            self.trace.append((time.perf_counter(), s.t, self.behind, self.step_s, self.draw_s))
+            self.steps_at_end = s.step_count
+        spare = FRAME_BUDGET_S - self.step_s - self.draw_s - self.record_s
+        if spare > 0 and not self.behind:
+            time.sleep(spare)
 
     def _finish_record(self, folder, frames: list[Path]) -> None:
         """The final state as a snapshot (the last frame shows it) and the video, as `run` writes them."""
@@ -304,8 +388,23 @@ def cmd_view(args) -> int:
     problem = display_problem()  # before anything slow: no display is a one-line answer at once
     if problem is not None:
         raise no_display_error(problem, args.config)
-    cfg = config_from_args(args)
+    choice = None
+    if getattr(args, "realtime", False):
+        from taichi_sph.cli.main import realtime_config
+        from taichi_sph.run.realtime_measure import choose
+
+        cfg, solvers = realtime_config(args)
+        choice = choose(cfg, solvers, view=True, log=(lambda *a: None) if args.quiet else print)
+        if not args.quiet:
+            print(choice.line)
+        cfg = choice.cfg
+    else:
+        if args.solver == "auto":
+            raise UsageError("--solver auto chooses by real time: add --realtime")
+        cfg = config_from_args(args)
     record = None
     if args.record:
         record = Path(args.out) if args.out else Path("renders") / f"{cfg.name}-{cfg.solver}-view"
-    return Viewer(cfg, frames=args.frames, record_dir=record, quiet=args.quiet, config_arg=args.config).run()
+    return Viewer(cfg, frames=args.frames, record_dir=record, quiet=args.quiet, config_arg=args.config,
+                  realtime=choice).run()
+

@@ -1,7 +1,10 @@
 """The live window's pacing and readout: each frame steps the solver for as long as the frame budget
 (1/30 s minus the last frame's drawing and writing time) allows, at least one step; the rates over the
 last second (frames/s, steps/s, real-time factor), what a frame costs (stepping, drawing and writing apart)
-and why it runs below TARGET_FPS; the shown frames written to PNG on a background thread."""
+and why it runs below TARGET_FPS; the shown frames written to PNG on a background thread.
+With --realtime a frame steps only up to the wall clock (`WallClock`, `step_until`): a step starts only
+when t + dt <= t0 + (wall - wall0), so simulated time never runs ahead of the wall; a machine that falls
+behind drops the lag beyond MAX_LAG_S (shown as "behind"), and `realtime_report` sums the run up."""
 
 from __future__ import annotations
 
@@ -14,6 +17,7 @@ import numpy as np
 
 FRAME_BUDGET_S = 1.0 / 30.0  # stepping fills the frame up to this, drawing included
 TARGET_FPS = 20.0
+MAX_LAG_S = 0.1  # --realtime: simulated time kept at most this far behind the wall clock; more is dropped
 
 
 def step_for(solver, t_end: float, budget: float, single: bool) -> int:
@@ -30,6 +34,77 @@ def step_for(solver, t_end: float, budget: float, single: bool) -> int:
             break
         batch = int(max(1, min(64, (budget - elapsed) / (elapsed / steps))))  # what the rest of the budget holds
     return steps
+
+
+class WallClock:
+    """The simulated time the wall clock allows: t0 + (now - wall0), restarted at (re)start, resume and reset.
+    When the simulation lags more than MAX_LAG_S, t0 moves up (the lag beyond it is dropped, not caught up)."""
+
+    def __init__(self, max_lag_s: float = MAX_LAG_S) -> None:
+        self.max_lag_s, self.wall0, self.t0 = max_lag_s, None, 0.0
+
+    @property
+    def started(self) -> bool:
+        return self.wall0 is not None
+
+    def start(self, t: float) -> None:
+        self.wall0, self.t0 = time.perf_counter(), t
+
+    def allowed(self) -> float:
+        """t0 + (now - wall0) [s of simulated time]."""
+        return self.t0 + time.perf_counter() - self.wall0
+
+    def target(self, t: float) -> float:
+        """The simulated time to step to from t, the lag capped at max_lag_s."""
+        target = self.allowed()
+        if target - t > self.max_lag_s:
+            self.t0 -= target - t - self.max_lag_s
+            target = t + self.max_lag_s
+        return target
+
+
+def step_until(solver, t_end: float, t_wall: float, budget: float, dt_guess: float) -> tuple[int, bool, float]:
+    """Step while the next step ends at or before `t_wall` (its dt guessed from the last one) and the frame's
+    `budget` lasts, in batches as `step_for`. Returns (steps, caught up with t_wall, the last dt)."""
+    t0 = time.perf_counter()
+    steps, batch = 0, 1
+    while solver.t < t_end - 1e-12 and solver.t + dt_guess <= t_wall + 1e-12:
+        if steps and time.perf_counter() - t0 >= budget:
+            return steps, False, dt_guess
+        dts = solver.advance(batch, t_wall - dt_guess, t_end)  # steps start only while t < t_wall - dt
+        if not dts:
+            break
+        steps, dt_guess = steps + len(dts), dts[-1]
+        elapsed = time.perf_counter() - t0
+        batch = int(max(1, min(64, (budget - elapsed) / (elapsed / steps))))
+    return steps, True, dt_guess
+
+
+def realtime_report(walls: list[float], ts: list[float], step_costs: list[float], draw_costs: list[float],
+                    behind: list[bool], ahead_s: float, predicted: float, share: float, t_max: float = 2.0) -> dict:
+    """--realtime's account of a window run (frames after the clock started): the achieved RTF (median of
+    0.25 s wall windows while t <= t_max), frames per wall second, the stepping RTF (simulated s per s of
+    stepping) and the capacity it gives at the frames' drawing time, the frames behind, the prediction."""
+    from taichi_sph.run.realtime import stepping_share, windowed_rtf
+
+    windows = windowed_rtf(walls, ts, 0.25, t_max)
+    wall = max(walls[-1] - walls[0], 1e-9) if len(walls) > 1 else 1e-9
+    step_total = max(sum(step_costs[1:]), 1e-9)
+    stepping = (ts[-1] - ts[0]) / step_total if len(ts) > 1 else 0.0
+    draw = float(np.median(draw_costs)) if draw_costs else 0.0
+    out = {"achieved_rtf": float(np.median(windows)) if windows else (ts[-1] - ts[0]) / wall if len(ts) > 1 else 0.0,
+           "rtf_windows": len(windows), "frames_per_s": (len(walls) - 1) / wall, "stepping_rtf": stepping,
+           "capacity_rtf": stepping * stepping_share(draw), "draw_ms": 1e3 * draw,
+           "frames_behind": int(sum(behind)), "frames": len(walls), "sim_ahead_ms": 1e3 * max(ahead_s, 0.0),
+           "predicted_rtf": predicted, "predicted_stepping_rtf": predicted / share if share > 0 else predicted,
+           "t": ts[-1] if ts else 0.0}
+    out["line"] = (f"realtime: achieved RTF {out['achieved_rtf']:.2f} (median of {len(windows)} windows to t = "
+                   f"{min(t_max, out['t']):.3g} s), {out['frames_per_s']:.1f} frames/s, behind in "
+                   f"{out['frames_behind']} of {len(walls)} frames; capacity RTF {out['capacity_rtf']:.2f} "
+                   f"(stepping {stepping:.2f} with {out['draw_ms']:.1f} ms drawing a frame) vs predicted "
+                   f"{predicted:.2f} (stepping {out['predicted_stepping_rtf']:.2f}); never ahead of the wall by "
+                   f"more than {out['sim_ahead_ms']:.1f} ms")
+    return out
 
 
 def frame_cost_lines(fps: float, step_s: float, steps: int, draw_s: float, record_s: float, recording: bool,
