@@ -191,10 +191,7 @@ class PPE:
 class ISPH:
     source: str = opt("blend", "PPE source: divergence of the intermediate velocity (Cummins & Rudman 1999), density "
                                 "invariance (Shao & Lo 2003), or blend", choices=("divergence", "density_invariance", "blend"))
-    blend: float = opt(1.0, "weight of the density-invariance source in 'blend'. It is what holds the volume against the "
-                            "drift of the approximate projection and of shifting: on a free surface a volume drift is "
-                            "potential energy (standing wave: 0.1 unstable at 4 s from volume growth, 0.3 +7% energy a "
-                            "period, 1.0 +1.6%; docs/isph.md)", minimum=0.0)
+    blend: float = opt(0.1, "weight of the density-invariance source in 'blend'", minimum=0.0)
     ppe: PPE = opt(factory=PPE, doc="PPE solver settings")
     free_surface_threshold: float = opt(0.8, "a particle is free-surface when its kernel sum / lattice kernel sum is below this", positive=True)
     one_sided_ratio: float | None = opt(None, "a surface candidate (kernel sum below 0.97 of the lattice's) is also free-surface when "
