@@ -47,6 +47,8 @@ def taichi_cpu():
 # slow` runs them, and .ci/run does, after the default set and ruff. Run one by name with `-m slow` or `-m ""`.
 # Times: CPU seconds of a cold-cache run on a loaded 2-core machine (this test's process and its children).
 SLOW = {
+    # the wave with ISPH's defaults over 3 periods (the two short unstable set-ups stay default)
+    "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods": "~35 s quiet, 70 s loaded: to t = 5",
     # three of the five kill moments (the other two, rows 13 and 20, and the SIGINT one stay in the default
     # set): each is a dam-break child process killed, then resumed in-process, ~23 s; the first one in the
     # module also runs the uninterrupted reference (83 s)

@@ -191,7 +191,17 @@ class PPE:
 class ISPH:
     source: str = opt("blend", "PPE source: divergence of the intermediate velocity (Cummins & Rudman 1999), density "
                                 "invariance (Shao & Lo 2003), or blend", choices=("divergence", "density_invariance", "blend"))
-    blend: float = opt(0.1, "weight of the density-invariance source in 'blend'", minimum=0.0)
+    blend: float = opt(1.0, "weight of the density-invariance source in 'blend'. It is what holds the volume against the "
+                            "drift of the approximate projection and of shifting: on a free surface a volume drift is "
+                            "potential energy (standing wave: 0.1 unstable at 4 s from volume growth, 0.3 +7% energy a "
+                            "period, 1.0 +1.6%; docs/isph.md)", minimum=0.0)
+    density: str = opt("summation", "the density the density-invariance source holds at rho0: 'summation' (the kernel sum; "
+                                    "at a fixed volume it rises with the arrangement's disorder, ~1.2 sigma^2 at h = 1.3 dx, "
+                                    "so the projection expands a disordered fluid) or 'continuity' (each particle's density "
+                                    "carried by det(I + grad u) of its step's displacement and of its shift: no disorder "
+                                    "bias, no truncated kernel at a free surface, but it fights the shift next to walls. Experimental: tried "
+                                    "on the standing wave; the stretching drop gains energy from its first steps with it and "
+                                    "ends non-finite; docs/isph.md)", choices=("summation", "continuity"))
     ppe: PPE = opt(factory=PPE, doc="PPE solver settings")
     free_surface_threshold: float = opt(0.8, "a particle is free-surface when its kernel sum / lattice kernel sum is below this", positive=True)
     one_sided_ratio: float | None = opt(None, "a surface candidate (kernel sum below 0.97 of the lattice's) is also free-surface when "

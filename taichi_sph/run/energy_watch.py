@@ -2,8 +2,8 @@
 row, its start, peak and last value kept in the loop state, and the growth that ends a run with no energy input
 "unstable" (`guards.energy_growth`):
     E(t) - E_rest > (1 + growth) (E(0) - E_rest) + floor,
-floor = energy_floor (a thousandth of the body forces' work over dx, a millionth of the kinetic energy at the
-scene's speed). A closed flow only loses energy to viscosity, diffusion and impacts; a gain is the scheme's."""
+floor = energy_floor (the body forces' work over 3e-3 dx for WCSPH, 1e-3 dx for ISPH, and a millionth of the
+kinetic energy at the scene's speed). A closed flow only loses energy to viscosity, diffusion and impacts; a gain is the scheme's."""
 
 from __future__ import annotations
 

@@ -5,8 +5,10 @@ neighbours and the summation density (over the lattice's kernel sum, so a full l
 particles (kernel sum, cone scan, one-sided ratio: physics/free_surface.py) get a Dirichlet pressure; predictor
 v* = v + dt (g + viscous); PPE -sum_b K_ab (p_a - p_b) = s_a with rows scaled by V_a (symmetric positive definite),
 walls a pairwise hydrostatic Neumann condition, source div(v*) / dt, (rho0 - rho*) / (rho0 dt^2) or their blend
-(`isph.source`), solved matrix-free (linalg/ppe.py); walls get the Adami pressure; v = v* - dt grad p / rho0 with
-the kernel-gradient-corrected difference gradient; x += dt v; kinematic wall condition; shifting (solvers/shifting.py).
+(`isph.source`; rho the summation density, or with `isph.density: continuity` each particle's density carried
+by det(I + grad u) of its step's displacement and shift: docs/isph.md), solved matrix-free (linalg/ppe.py); walls
+get the Adami pressure; v = v* - dt grad p / rho0 with the kernel-gradient-corrected difference gradient;
+x += dt v; kinematic wall condition; shifting (solvers/shifting.py).
 Invariants: a fluid at rest stays at rest (hydrostatic walls, a gradient exact for a linear pressure at any level);
 with no free surface the pressure has mean `fluid.background_pressure`. The step in detail, and what was measured
 on the way (compression_only, the stretching drop's void, one-sided supports): docs/notes/isph.md.
@@ -21,6 +23,7 @@ import taichi as ti
 
 from taichi_sph.config.schema import Config
 from taichi_sph.linalg.ppe import BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE
+from taichi_sph.physics.density import corrected_gradient_pair_terms, deformation_density
 from taichi_sph.physics.free_surface import SURFACE_CANDIDATE, in_surface_cone, projection_self_ratio
 from taichi_sph.physics.momentum import monaghan_viscosity, morris_laminar_viscosity
 from taichi_sph.physics.ppe_terms import (
@@ -87,6 +90,12 @@ class ISPHSolver(SolverBase):
         P.make_persistent(P.acc)  # the free-surface pressure uses the last acceleration
         self.rho_summation = P.add_scalar()    # rho_a before any floor: the density-invariance source
         self.grad_p_estimate = P.add_vector()  # rho0 (g - a) of the last step: grad p near the surface
+        # isph.density: continuity: each particle's density, carried by the divergence of its motion and shift
+        self.continuity = ic.density == "continuity"
+        self.rho_continuity = P.add_scalar(persistent=True) if self.continuity else None
+        if self.continuity:
+            self.rho_continuity.fill(self.rho0)
+            self.displacement = P.add_vector()  # the motion whose divergence changes rho_continuity
         self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
                                  ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid,
                                  ic.ppe.check_every)
@@ -253,13 +262,16 @@ class ISPHSolver(SolverBase):
                 near_surface = row.near_surface
                 div_v = row.div_v * self.grad_norm
                 rho = self.rho_summation[a]
+                if ti.static(self.continuity):
+                    rho = self.rho_continuity[a]
                 if near_surface:
                     # sum over the cut-off support of K (p_a - p_m), p continued linearly with gradient
                     # rho0 (g - a): rho0 (g - a) . sum_missing K r_am = -rho0 (g - a) . sum_present K r_ab
                     # (a full lattice has no first moment)
                     rhs += self.grad_p_estimate[a].dot(moment)
-                    rho = ti.max(rho, self.rho0)
-                    P.rho[a] = rho
+                    P.rho[a] = ti.max(self.rho_summation[a], self.rho0)
+                    if ti.static(not self.continuity):  # a cut-off kernel sum is not expansion
+                        rho = ti.max(rho, self.rho0)
                 if ti.static(self.compression_only):
                     rho = ti.max(rho, self.rho0)
                 rhs -= vol_a * ppe_source(div_v, rho, self.rho0, dt, dt_relax, self.beta)
@@ -348,6 +360,10 @@ class ISPHSolver(SolverBase):
                     if cut:
                         ti.atomic_add(self.wall_cuts[None], 1)
                 P.v[a] = v
+        if ti.static(self.continuity):
+            for a in range(self.n):
+                self.displacement[a] = dt * P.v[a] if P.kind[a] == FLUID else ti.Vector.zero(float, self.dim)
+            self.continuity_pass()
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 P.x[a] += dt * P.v[a]
@@ -363,6 +379,43 @@ class ISPHSolver(SolverBase):
             vol_b = P.mass[b] / self.rho0
             sums.sum_dp += vol_b * (P.p[b] - sums.p_a) * grad_w
             sums.moment -= vol_b * r_ab.outer_product(grad_w)
+
+    # -- continuity density ------------------------------------------------------------------------
+    @ti.func
+    def continuity_pass(self):
+        """rho_c,a /= det(I + grad u_a) for the displacement u (this step's dt v, or the shift) at the positions
+        before it: the corrected gradient over fluid and wall neighbours (walls do not move), the lattice-normalised
+        one where the moment matrix is near singular."""
+        P = self.particles
+        for a in range(self.n):
+            if P.kind[a] == FLUID:
+                sums = ti.Struct(u_a=self.displacement[a], s=ti.Matrix.zero(float, self.dim, self.dim),
+                                 moment=ti.Matrix.zero(float, self.dim, self.dim))
+                self.nsearch.for_each_neighbor(a, P.x, self.continuity_pair, sums)
+                grad_u = sums.s * self.grad_norm
+                if ti.abs(sums.moment.determinant()) > MIN_MOMENT_DETERMINANT:
+                    grad_u = sums.s @ sums.moment.inverse()
+                self.rho_continuity[a] = deformation_density(self.rho_continuity[a], grad_u)
+
+    @ti.func
+    def continuity_pair(self, a, b, r_ab, sums: ti.template()):
+        """Pair (a, b)'s share of sum_b V_b (u_b - u_a) (x) grad W and of the moment matrix."""
+        P = self.particles
+        grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
+        u_b = ti.Vector.zero(float, self.dim)
+        if P.kind[b] == FLUID:
+            u_b = self.displacement[b]
+        s_ab, m_ab = corrected_gradient_pair_terms(P.mass[b] / self.rho0, sums.u_a - u_b, r_ab, grad_w)
+        sums.s += s_ab
+        sums.moment += m_ab
+
+    @ti.kernel
+    def shift_continuity(self):
+        """rho_c after the particle shift (computed, not yet applied): its divergence changes the volumes."""
+        P = self.particles
+        for a in range(self.n):
+            self.displacement[a] = self.shifting.shift[a] if P.kind[a] == FLUID else ti.Vector.zero(float, self.dim)
+        self.continuity_pass()
 
     # -- one step -------------------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -402,7 +455,10 @@ class ISPHSolver(SolverBase):
             self.wall_pressure()
         self.correct_and_move(dt)
         if self.shifting is not None:
-            self.shifting.apply(dt, s["max_speed"])
+            self.shifting.compute(dt, s["max_speed"])
+            if self.continuity:
+                self.shift_continuity()
+            self.shifting.move()
         self.t += dt
         self.step_count += 1
         return dt

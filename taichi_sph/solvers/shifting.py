@@ -1,9 +1,13 @@
 """Particle shifting (Lind et al. 2012 with the free-surface projection), used by ISPH and WCSPH.
 
 dr_a = -D grad C_a,  grad C_a = sum_b V_b (1 + 0.2 (W_ab / W(dx))^4) grad_a W_ab,  D = A h U dt,
-capped at `shifting.max_shift` dx. At the free surface (kernel sum below `isph.free_surface_threshold`
-x the lattice sum) only the component tangent to the surface is kept (normal ~ grad C): the surface is
-not pushed outward.
+capped at `shifting.max_shift` dx. In the free-surface band (both models; Lind et al. 2012, Sun et al. 2017):
+a surface particle (kernel sum below `isph.free_surface_threshold` x the lattice sum) keeps only the component
+tangent to the surface, a particle with a surface particle within its support loses its outward component
+(normal n = -sum_b V_b grad_a W_ab / |.|). The rows under the surface row have a truncated kernel too, and
+-D grad C points out of the fluid there: shifted outward every step they lift the surface (the standing wave,
+skillen with the outer-layer projection only: the second row up 3.9e-3 dx a step, the wave's energy +72% in
+0.3 s; docs/isph.md).
 
 The speed U (`shifting.model`):
 - `skillen` (Skillen et al. 2013): the particle's own |v_a|. It vanishes at a stagnation point. In a
@@ -16,10 +20,9 @@ The speed U (`shifting.model`):
   isotropic, stagnation points included. Their dr = -CFL Ma (2h)^2 grad C with CFL = c0 dt / h is
   D = 4 h U_max dt: A = 4 here. As theirs, the projection acts in the whole surface band (a surface
   particle or one with a surface particle within its support), with the normal of the kernel sum
-  n = -sum_b V_b grad_a W_ab / |.| rather than grad C: `skillen` projects the outer layer only, and
-  there on grad C itself, which leaves it no shift at all; the layers below are pushed outward
-  (-grad C points out of the fluid there), and a WCSPH body, whose continuity density does not see
-  a shift, grew in area (stretching drop at t = 0.4 s: +6.6% with the outer-layer projection).
+  n = -sum_b V_b grad_a W_ab / |.| rather than grad C (with the outer-layer projection only, on grad C, the
+  layers below were pushed outward, and a WCSPH body, whose continuity density does not see a shift, grew
+  in area: stretching drop at t = 0.4 s +6.6%); `skillen` now projects in the same band.
 """
 
 
@@ -50,8 +53,8 @@ class ParticleShifting:
         self.threshold = cfg.isph.free_surface_threshold
         self.w_dx = float(solver.kernel.w_np(np.array([cfg.particles.dx]))[0])
         self.shift = solver.particles.add_vector()
-        # surface flags of this step (sun: the projection band is found from the neighbours' flags)
-        self.surface = solver.particles.add_scalar(dtype=ti.i32) if self.global_speed else None
+        # surface flags of this step (the projection band is found from the neighbours' flags)
+        self.surface = solver.particles.add_scalar(dtype=ti.i32)
         # sun: 1 in the free-surface region (a surface particle within the support, itself included), for
         # WCSPH's tensile instability control; persistent: the neighbour rebuild between the shift and the force
         # pass that reads it may reorder the particles
@@ -87,16 +90,15 @@ class ParticleShifting:
 
     @ti.func
     def flag_surface_pass(self, serial: ti.template()):
-        """surface[a] = 1 for fluid particles whose kernel sum is below the free-surface threshold (sun only)."""
-        if ti.static(self.global_speed):
-            S = self.solver
-            P = S.particles
-            ti.loop_config(serialize=serial)
-            for a in range(S.live_n()):
-                self.surface[a] = 0
-                if P.kind[a] == FLUID:
-                    if self.kernel_sum(a) < self.threshold * self.lattice_sum:
-                        self.surface[a] = 1
+        """surface[a] = 1 for fluid particles whose kernel sum is below the free-surface threshold."""
+        S = self.solver
+        P = S.particles
+        ti.loop_config(serialize=serial)
+        for a in range(S.live_n()):
+            self.surface[a] = 0
+            if P.kind[a] == FLUID:
+                if self.kernel_sum(a) < self.threshold * self.lattice_sum:
+                    self.surface[a] = 1
 
     @ti.func
     def compute_pass(self, dt, max_speed, serial: ti.template()):
@@ -117,14 +119,10 @@ class ParticleShifting:
                 if ti.static(self.global_speed):
                     speed = max_speed
                 dr = -shifting_diffusion(self.coefficient, S.h, speed, dt) * grad_c
-                if ti.static(self.global_speed):
-                    if ksum < self.threshold * self.lattice_sum:
-                        dr = tangential_part(dr, grad_sum.normalized(1e-12))
-                    elif band == 1:
-                        dr = no_outward_part(dr, -grad_sum.normalized(1e-12))
-                else:
-                    if ksum < self.threshold * self.lattice_sum:
-                        dr = tangential_part(dr, grad_c.normalized(1e-12))
+                if ksum < self.threshold * self.lattice_sum:
+                    dr = tangential_part(dr, grad_sum.normalized(1e-12))
+                elif band == 1:
+                    dr = no_outward_part(dr, -grad_sum.normalized(1e-12))
                 length = dr.norm()
                 if length > self.max_shift:
                     dr *= self.max_shift / length
@@ -142,9 +140,9 @@ class ParticleShifting:
         sums.ksum += vol_b * w
         sums.grad_sum += vol_b * grad_w
         sums.grad_c += lind_concentration_gradient_term(vol_b, w, self.w_dx, grad_w)
-        if ti.static(self.global_speed):
-            if P.kind[b] == FLUID and r < S.support:
-                sums.band = ti.max(sums.band, self.surface[b])
+        if P.kind[b] == FLUID and r < S.support:
+            sums.band = ti.max(sums.band, self.surface[b])
+
 
     @ti.func
     def move_pass(self, serial: ti.template()):

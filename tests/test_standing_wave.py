@@ -1,0 +1,43 @@
+"""The standing wave (configs/standing_wave_2d.yaml, dx = 0.025, 3.2k fluid particles) run with ISPH's defaults,
+and set-ups that must not end "ok". Linear theory: period 1.6714 s, E0 = rho g a^2 L / 4 = 1.96 J.
+
+What the bounds hold (measured December 2026 on the 2-core VM, docs/isph.md): ISPH's defaults give period +1.00%,
+left/right asymmetry 0.41%, amplitude 1.045 of theory after 3 periods, energy +1.6% a period, peak +20% at a crest
+phase (h = 1.3 dx). Before the shift's surface-band projection and blend 1.0 the same run was "unstable" at t = 0.17 s
+(energy +42%). The issue's targets (period < 0.5%, amplitude within 3%, -1% .. +0.5% a period) are not met yet;
+these bounds are today's numbers with a margin, so a regression fails here."""
+
+import pytest
+
+from taichi_sph.config import load_config
+from taichi_sph.config.loader import bundled_configs_dir
+from taichi_sph.run.simulation import Simulation
+
+
+def wave(tmp_path, t_end, *overrides):
+    cfg = load_config(bundled_configs_dir() / "standing_wave_2d.yaml", ["solver=isph", f"time.t_end={t_end}",
+                                                                         *overrides])
+    return Simulation(cfg, tmp_path, render=False, quiet=True).run().summary
+
+
+def test_isph_defaults_keep_the_wave_for_three_periods(tmp_path):
+    s = wave(tmp_path, 5.0)
+    assert s["status"] == "ok" and s["energy"]["guard"] == "on"
+    e = s["errors"]
+    assert 0.0 < e["period_error"] < 0.015  # +1.00%: a spatial error (h = 1.3 dx), the same at cfl 0.1
+    assert abs(e["period_asymmetry"]) < 0.006  # 0.41%
+    assert 0.97 < e["amplitude_ratio"] < 1.07  # 1.045
+    assert -0.01 < e["energy_change_per_period"] < 0.025  # +1.6%
+    assert s["energy"]["growth"] < 0.25  # the crest-phase peak, +20%
+
+
+@pytest.mark.parametrize("overrides, t_before", [
+    # the divergence source alone cannot hold the volume against the shift's drift: +40% by t = 0.33 s
+    (("isph.blend=0",), 1.0),
+    # the old default weight: the volume grows from t ~ 1 s (+37% at 1.21 s; density 24% at 4 s with no guard)
+    (("isph.blend=0.1",), 2.0),
+])
+def test_a_wave_that_gains_energy_ends_unstable(tmp_path, overrides, t_before):
+    s = wave(tmp_path, t_before + 0.5, *overrides)
+    assert s["status"] == "unstable"
+    assert s["instability"]["criterion"] == "energy_growth" and s["instability"]["t"] < t_before
