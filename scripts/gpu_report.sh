@@ -13,14 +13,25 @@
 #                                                       real-time factor of every bundled scene)
 #   2. dam_break_2d and dam_break_3d, WCSPH on CUDA    (wall crossings in summary.json: want 0)
 #   3. TAICHI_SPH_TEST_ARCH=cuda pytest                (the suite with every CPU request served by CUDA)
+#   4. TAICHI_SPH_TEST_ARCH=cuda pytest -m vulkan      (the device set, tests/test_vulkan.py: every arch branch,
+#                                                       both solvers, 2D/3D, against the CPU; < 10 min)
+#   5. TAICHI_SPH_TEST_ARCH=vulkan pytest -m vulkan    (the same on the GPU's own Vulkan driver: the backend
+#                                                       AMD, Intel and Apple GPUs get; docs/gpu.md)
 # PARTS=1,2 (say) runs a subset; REPORT_ARGS adds bench options (e.g. "--particles 100000,1000000").
+# Every part's output goes to OUT_DIR (default gpu-report/); send that folder back.
 set -uo pipefail
 cd "$(dirname "$0")/.."
 out=${1:-${OUT:-gpu-report}}
-parts=${PARTS:-1,2,3}
 mkdir -p "$out"
 py=${PYTHON:-python3}
-nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader 2>/dev/null | tee "$out/gpu.txt"
+parts=${PARTS:-1,2,3,4,5}
+{
+  nvidia-smi --query-gpu=name,driver_version,memory.total --format=csv,noheader 2>/dev/null || echo "nvidia-smi: not found"
+  nvidia-smi 2>/dev/null
+  $py -c "import taichi, sys; print('taichi', '.'.join(map(str, taichi.__version__)), 'python', sys.version.split()[0])" 2>&1 | grep -v '^\[Taichi\]'
+  $py -c "import taichi as ti; ti.init(arch=ti.cuda, log_level=ti.ERROR); print('taichi arch:', ti.lang.impl.current_cfg().arch.name)" 2>&1 | tail -1
+  $py -c "import taichi as ti; ti.init(arch=ti.vulkan, log_level=ti.ERROR); print('taichi arch:', ti.lang.impl.current_cfg().arch.name)" 2>&1 | tail -1
+} | tee "$out/gpu.txt"
 
 if [[ ",$parts," == *",1,"* ]]; then
   echo "== 1. bench --report (cuda)"
@@ -48,4 +59,14 @@ fi
 if [[ ",$parts," == *",3,"* ]]; then
   echo "== 3. the test suite on CUDA"
   TAICHI_SPH_TEST_ARCH=cuda timeout 600 $py -m pytest -q -x -p no:cacheprovider 2>&1 | tail -25 | tee "$out/pytest.txt"
+fi
+
+if [[ ",$parts," == *",4,"* ]]; then
+  echo "== 4. the device set on CUDA"
+  TAICHI_SPH_TEST_ARCH=cuda timeout 600 $py -m pytest -q -m vulkan -s -p no:cacheprovider 2>&1 | tail -40 | tee "$out/device-set-cuda.txt"
+fi
+
+if [[ ",$parts," == *",5,"* ]]; then
+  echo "== 5. the device set on the GPU's Vulkan driver"
+  TAICHI_SPH_TEST_ARCH=vulkan timeout 600 $py -m pytest -q -m vulkan -s -p no:cacheprovider 2>&1 | tail -40 | tee "$out/device-set-vulkan.txt"
 fi

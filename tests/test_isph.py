@@ -357,3 +357,15 @@ def test_explicit_step_force_leaves_the_pressure_acceleration_out(step_force, li
     dt = solver.step()
     assert solver.last_dt_limit == limit
     assert (dt < 0.5 * dt_before) == (step_force == "total")
+
+
+def test_a_moving_lid_bounds_the_first_step():
+    """A lid-driven cavity starts at rest: the fluid's speed (0) and gravity (none) leave the viscous limit
+    0.125 h^2 / nu, which at Re 1000 let the lid move 1.25 dx a step (unstable at t = 0.06 s). The lid's
+    speed bounds the step as the fluid's does: dt = cfl h / U_lid."""
+    cfg = load_config(bundled_configs_dir() / "cavity_2d.yaml", ["solver=isph", "fluid.nu=0.001"])
+    solver = ISPHSolver(cfg, build_particles(cfg))
+    solver.prepare()
+    assert solver.wall_speed == pytest.approx(1.0)
+    dt = solver.step()
+    assert dt == pytest.approx(0.25 * cfg.particles.dx * cfg.particles.hdx / 1.0, rel=1e-6)

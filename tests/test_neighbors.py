@@ -232,7 +232,7 @@ def test_cell_start_is_the_exclusive_prefix_sum_over_many_scan_blocks():
     n = 3000
     x = vec_field(np.random.default_rng(4).uniform(0.0, 1.0, (n, 2)))
     ns = NeighborSearch(2, n, [0.0, 0.0], [1.0, 1.0], 0.01, (False, False), 16)
-    assert ns.total_cells > 20 * ns._scan_block or ns._use_executor
+    assert ns.total_cells > 20 * ns._scan_block
     ns.build(x, [])
     per_cell = np.bincount(ns.cell_id.to_numpy(), minlength=ns.total_cells)
     np.testing.assert_array_equal(ns.cell_start.to_numpy(), np.concatenate([[0], np.cumsum(per_cell)]))
@@ -248,7 +248,7 @@ def test_order_inside_a_cell_does_not_depend_on_atomic_slot_order():
     slot = ns._slot_in_cell.to_numpy()
     size = np.bincount(cell, minlength=ns.total_cells)
     ns._slot_in_cell.from_numpy((size[cell] - 1 - slot).astype(np.int32))  # reversed hand-out order
-    ns._prefix_sum()
+    ns._scan_kernel()
     ns._sort_by_cell()
     order = ns.order.to_numpy()
     assert np.array_equal(np.sort(order), np.arange(n))

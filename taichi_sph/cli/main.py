@@ -1,8 +1,9 @@
-"""`taichi-sph` command line: run | resume | view | check | list | compare | sweep | stability | bench | render | config-doc.
+"""`taichi-sph` command line: run | resume | view | check | list | compare | sweep | stability | validate | bench | render |
+config-doc.
 
 User errors (bad config, bad arguments, missing driver, a run folder in use) print one line and exit 2; an
-unstable run exits 3; a full disk exits 4 (checkpoint kept); Ctrl-C exits 130 with a checkpoint. Tracebacks are
-for bugs only.
+unstable run exits 3; a full disk exits 4 (checkpoint kept); Ctrl-C exits 130 with a checkpoint. A study (compare,
+sweep, validate) exits 1 when one of its cases failed, else 3 when one became unstable. Tracebacks are for bugs only.
 """
 
 from __future__ import annotations
@@ -122,6 +123,23 @@ def build_parser() -> argparse.ArgumentParser:
         p.add_argument("--resume", action="store_true",
                        help="run only the cases whose run folder lacks a finished summary.json")
         _add_common(p)
+
+    p = sub.add_parser("validate", help="every validation scene with both solvers: one markdown report, a figure a scene")
+    p.add_argument("--quick", action="store_true",
+                   help="coarse resolutions and short end times (minutes; not the validated numbers)")
+    p.add_argument("--out", help="the report (default docs/validation_report.md, with --quick renders/validate-quick/"
+                        "validation_report.md; figures beside it in <stem>_figures/)")
+    p.add_argument("--runs", help="folder of the run folders (default renders/validate or renders/validate-quick)")
+    p.add_argument("--configs", help="folder of the scenes (default the bundled configs): those with a `metrics:` entry")
+    p.add_argument("--scenes", help="comma-separated scene names: only these")
+    p.add_argument("--solvers", default="wcsph,isph", help="comma-separated solvers (default both)")
+    p.add_argument("--force", action="store_true", help="run even when the disk pre-flight refuses")
+    p.add_argument("--jobs", type=int, metavar="N",
+                   help="cases at once in local processes (default: 1 on machines with <= 4 cores, else cores / 4)")
+    p.add_argument("--cluster", metavar="auto|ray://HOST:PORT",
+                   help="run the cases as tasks on a Ray cluster (pip install taichi-sph[cluster])")
+    p.add_argument("--resume", action="store_true", help="run only the cases whose run folder lacks a finished summary.json")
+    _add_common(p)
     return parser
 
 
@@ -319,7 +337,7 @@ COMMANDS = {
     "run": cmd_run, "resume": cmd_resume, "check": cmd_check, "list": cmd_list, "config-doc": cmd_config_doc, "render": cmd_render,
     "bench": cmd_bench, "compare": _lazy("studies.compare", "cmd_compare"),
     "sweep": _lazy("studies.sweep", "cmd_sweep"), "stability": _lazy("studies.stability", "cmd_stability"),
-    "view": _lazy("cli.view", "cmd_view"),
+    "view": _lazy("cli.view", "cmd_view"), "validate": _lazy("studies.validate", "cmd_validate"),
 }
 
 

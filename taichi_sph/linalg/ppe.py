@@ -181,8 +181,9 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
             self.progress[DONE] = 1.0
             self.progress[TRIVIAL] = 1.0
         value = level * ti.cast(self.progress[PINNED], float)
-        for a in range(self.n * ti.cast(self.progress[TRIVIAL], ti.i32)):
-            if self.role[a] == UNKNOWN:
+        trivial = ti.cast(self.progress[TRIVIAL], ti.i32)
+        for a in range(self.n):  # constant loop ends throughout (linalg/reduction.py says why)
+            if trivial and self.role[a] == UNKNOWN:
                 self.p[a] = value
 
     @ti.func
@@ -198,8 +199,8 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         shift_it = ti.cast(self.progress[PINNED] * (1.0 - self.progress[TRIVIAL]), ti.i32)
         self.sums.add_live(self.pressure_row, (SUM_P,), False, 0.0, shift_it)
         shift = level - self.scalars[SUM_P] / ti.max(self.scalars[N_UNKNOWN], 1.0)
-        for a in range(self.n * shift_it):
-            if self.role[a] == UNKNOWN:
+        for a in range(self.n):
+            if shift_it and self.role[a] == UNKNOWN:
                 self.p[a] += shift
 
     def solve(self, neumann_level: float = 0.0) -> tuple[int, float, bool]:

@@ -30,8 +30,8 @@ class JacobiCG:
         if live:
             self.progress[ITERATIONS] += 1.0
         ti.loop_config(serialize=serial)
-        for a in range(self.n * live):
-            if self.role[a] == UNKNOWN:
+        for a in range(self.n):  # a constant end (linalg/reduction.py)
+            if live and self.role[a] == UNKNOWN:
                 self.p[a] += self.omega * self.res[a] / self.diag[a]
 
     @ti.func

@@ -44,8 +44,8 @@ class MultigridCG:
         mean_z = self.scalars[SUM_Z] / ti.max(self.scalars[N_UNKNOWN], 1.0)
         if pinned:
             self.scalars[RZ_NEW] -= mean_z * self.scalars[SUM_R]
-        for a in range(self.n * pinned):
-            if self.role[a] == UNKNOWN:
+        for a in range(self.n):  # a constant end (linalg/reduction.py)
+            if pinned and self.role[a] == UNKNOWN:
                 self.z[a] -= mean_z
         self.conjugate_direction(serial, live)
 

@@ -7,6 +7,9 @@ therefore splits the rows into fixed blocks (their size depends on the row count
 in row order (the blocks in parallel or on one thread), and adds the block sums in block order on one
 thread: the same additions in the same order on one thread or many. On a GPU a block per thread would
 leave most of the chip idle, so there the rows add atomically (fast, not reproducible).
+A loop that a runtime flag (`live`) may leave empty keeps a constant end and tests the flag inside: Taichi's
+Vulkan backend dispatches a loop whose end is known only at run time as 131072 threads striding over it, which
+costs a software Vulkan (lavapipe) ~5 ms a loop (docs/notes/vulkan.md); a constant end dispatches n threads.
 """
 
 # No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
@@ -63,7 +66,8 @@ class RowSums:
                 for j in ti.static(range(len(slots))):
                     self.totals[ti.static(slots[j])] = 0.0
             ti.loop_config(serialize=serial)
-            for a in range(self.n * live):
-                v = row(a, arg)
-                for j in ti.static(range(len(slots))):
-                    ti.atomic_add(self.totals[ti.static(slots[j])], v[j])
+            for a in range(self.n):  # a constant end, `live` tested inside (see the module doc)
+                if live:
+                    v = row(a, arg)
+                    for j in ti.static(range(len(slots))):
+                        ti.atomic_add(self.totals[ti.static(slots[j])], v[j])

@@ -26,7 +26,8 @@ _current: tuple[str, str] | None = None
 def init_taichi(arch: str = "cpu", precision: str = "f32", *, force: bool = False, debug: bool = False) -> None:
     """Initialise Taichi once per (arch, precision); re-initialising drops every existing field.
 
-    `auto` and `gpu` fall back to the CPU when no GPU backend is found.
+    `auto` and `gpu` take the first GPU backend Taichi finds (cuda, then vulkan, ...; ti.gpu is that list) and
+    fall back to the CPU when there is none; a named arch that Taichi cannot start is an error.
     """
     global _current
     arch = test_arch_override(arch)
@@ -46,7 +47,7 @@ def init_taichi(arch: str = "cpu", precision: str = "f32", *, force: bool = Fals
             ti.init(arch=ti.gpu, **kwargs)  # Taichi falls back to CPU itself when no GPU is found
         else:
             ti.init(arch=_ARCHES[arch](), **kwargs)
-        if ti.lang.impl.current_cfg().arch != _ARCHES[arch]():
+        if arch not in ("auto", "gpu") and ti.lang.impl.current_cfg().arch != _ARCHES[arch]():
             raise SPHError(
                 f"arch '{arch}' is not available on this machine (Taichi fell back to "
                 f"{ti.lang.impl.current_cfg().arch.name}); use --arch cpu or install the {arch} driver"

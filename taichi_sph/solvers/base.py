@@ -86,7 +86,7 @@ class SolverBase(KinematicWalls, CheckpointState):
         self.step_count = 0
         self.last_dt_limit = ""
         self.dt_cap = math.inf  # the run loop caps the step so that t lands on t_end
-        # t, dt and `live` on the device: the step passes loop over `live_n()` particles, so that a step a
+        # t, dt and `live` on the device: the step passes test `live()` for each particle, so that a step a
         # device-resident loop does not take is empty (solvers stepping from the host leave live at 1)
         self.clock = DeviceClock()
 
@@ -106,9 +106,11 @@ class SolverBase(KinematicWalls, CheckpointState):
         return d
 
     @ti.func
-    def live_n(self):
-        """The particle loops' length: n while this step runs, 0 for a step a device loop skips."""
-        return self.n * self.clock.live[None]
+    def live(self):
+        """1 while this step runs, 0 for a step a device loop skips. The particle loops run to the constant n and
+        test it inside: a loop end known only at run time (n * live) makes a GPU backend dispatch 131072 threads
+        striding over it (linalg/reduction.py), which costs a software Vulkan ~5 ms a loop."""
+        return self.clock.live[None]
 
     # -- shared passes ---------------------------------------------------------------------
     @ti.kernel
@@ -138,11 +140,12 @@ class SolverBase(KinematicWalls, CheckpointState):
         P = self.particles
         NS = self.nsearch
         ti.loop_config(serialize=serial)
-        for a in range(self.live_n()):
-            if P.kind[a] == FLUID:
-                rho = P.mass[a] * self.kernel.w0
-                NS.for_each_neighbor(a, P.x, self.summation_density_pair, rho)
-                P.rho[a] = rho * self.inv_lattice_sum
+        for a in range(self.n):
+            if self.live():
+                if P.kind[a] == FLUID:
+                    rho = P.mass[a] * self.kernel.w0
+                    NS.for_each_neighbor(a, P.x, self.summation_density_pair, rho)
+                    P.rho[a] = rho * self.inv_lattice_sum
 
     @ti.func
     def summation_density_pair(self, a, b, r_ab, rho: ti.template()):
@@ -162,9 +165,10 @@ class SolverBase(KinematicWalls, CheckpointState):
         """Tait pressure for every fluid particle."""
         P = self.particles
         ti.loop_config(serialize=serial)
-        for a in range(self.live_n()):
-            if P.kind[a] == FLUID:
-                P.p[a] = self.tait(P.rho[a])
+        for a in range(self.n):
+            if self.live():
+                if P.kind[a] == FLUID:
+                    P.p[a] = self.tait(P.rho[a])
 
     @ti.func
     def body_force(self, x):
@@ -182,25 +186,26 @@ class SolverBase(KinematicWalls, CheckpointState):
         P = self.particles
         NS = self.nsearch
         ti.loop_config(serialize=serial)
-        for a in range(self.live_n()):
-            if P.kind[a] == WALL:
-                xa = P.x[a]
-                sums = ti.Struct(w=0.0, pw=0.0, rho_rw=ti.Vector.zero(float, self.dim),
-                                 vw=ti.Vector.zero(float, self.dim))
-                NS.for_each_neighbor(a, P.x, self.adami_wall_pair, sums)
-                sum_w, sum_pw, sum_rho_rw, sum_vw = sums.w, sums.pw, sums.rho_rw, sums.vw
-                body_acc = self.body_force(xa)  # (g - a_wall); walls do not accelerate
-                # walls push, never pull: a negative extrapolated pressure (wall above a free surface)
-                # would glue fluid to the wall
-                p = ti.max(adami_wall_pressure(sum_pw, sum_rho_rw, sum_w, body_acc), 0.0)
-                if sum_w == 0.0:
-                    p = self.p_background
-                P.p[a] = p
-                rho_w = tait_density(p, self.rho0, self.B, self.gamma, self.p_background)
-                P.rho[a] = rho_w
-                P.mass[a] = rho_w * self.lattice_volume  # a wall particle stands for dx^dim of ghost fluid
-                if ti.static(self.features.no_slip):
-                    self.v_ghost[a] = adami_wall_velocity(P.v[a], sum_vw, sum_w)
+        for a in range(self.n):
+            if self.live():
+                if P.kind[a] == WALL:
+                    xa = P.x[a]
+                    sums = ti.Struct(w=0.0, pw=0.0, rho_rw=ti.Vector.zero(float, self.dim),
+                                     vw=ti.Vector.zero(float, self.dim))
+                    NS.for_each_neighbor(a, P.x, self.adami_wall_pair, sums)
+                    sum_w, sum_pw, sum_rho_rw, sum_vw = sums.w, sums.pw, sums.rho_rw, sums.vw
+                    body_acc = self.body_force(xa)  # (g - a_wall); walls do not accelerate
+                    # walls push, never pull: a negative extrapolated pressure (wall above a free surface)
+                    # would glue fluid to the wall
+                    p = ti.max(adami_wall_pressure(sum_pw, sum_rho_rw, sum_w, body_acc), 0.0)
+                    if sum_w == 0.0:
+                        p = self.p_background
+                    P.p[a] = p
+                    rho_w = tait_density(p, self.rho0, self.B, self.gamma, self.p_background)
+                    P.rho[a] = rho_w
+                    P.mass[a] = rho_w * self.lattice_volume  # a wall particle stands for dx^dim of ghost fluid
+                    if ti.static(self.features.no_slip):
+                        self.v_ghost[a] = adami_wall_velocity(P.v[a], sum_vw, sum_w)
 
     @ti.func
     def adami_wall_pair(self, a, b, r_ab, sums: ti.template()):

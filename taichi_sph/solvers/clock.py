@@ -7,7 +7,7 @@ its own kernels; the host learns where the run stands from one read-back per `ad
 Per call the host passes (max_steps, t_stop, t_end): steps run while t < t_stop (the next output, frame,
 snapshot or checkpoint time; the first step always runs) and t < t_end; the last step is cut so that
 t lands on t_end exactly. A step that is not taken leaves `live` at 0, and every loop of the step is
-then empty (`live_n`): on a GPU the host queues a batch of steps without knowing where the batch will
+then empty (each pass tests `live()`): on a GPU the host queues a batch of steps without knowing where the batch will
 stop. t is kept in f64 (an f32 t would drift by up to ~1e-8 s per step at t ~ 1 s), as are the kernel
 arguments t_stop and t_end: CPU, CUDA and Vulkan devices with shaderFloat64.
 """

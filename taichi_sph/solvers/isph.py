@@ -83,6 +83,10 @@ class ISPHSolver(SolverBase):
         self.grad_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np)
         self.lap_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np, self.eta2)
         self.g_norm = float(np.linalg.norm(cfg.gravity_vector))
+        # moving walls bound the step as the fluid does: a lid-driven cavity starts at rest, and the viscous limit
+        # alone let the lid move 1.25 dx a step (Re 1000, unstable at t = 0.06 s)
+        walls = arrays.kind != FLUID
+        self.wall_speed = float(np.linalg.norm(arrays.v[walls], axis=1).max()) if walls.any() else 0.0
         self.alpha, self.beta_av = cfg.artificial_viscosity  # isph.artificial_viscosity_alpha or WCSPH's
         self.wall_mass = self.rho0 * self.lattice_volume
         # kinematic wall condition: each wall particle knows the face it lies behind (permuted with it)
@@ -435,7 +439,7 @@ class ISPHSolver(SolverBase):
         max_acc = s["max_acc"]
         if self.explicit_step_force:
             max_acc = self.explicit_acc[None]  # the last predictor's (0 before the first step: gravity bounds it)
-        dt_free = self.choose_dt(s["max_speed"], max(max_acc, self.g_norm), 0.0)
+        dt_free = self.choose_dt(max(s["max_speed"], self.wall_speed), max(max_acc, self.g_norm), 0.0)
         self.dt_cap = cap
         dt = min(dt_free, cap)
         if self.step_count > 0:

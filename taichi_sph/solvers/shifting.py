@@ -94,11 +94,12 @@ class ParticleShifting:
         S = self.solver
         P = S.particles
         ti.loop_config(serialize=serial)
-        for a in range(S.live_n()):
-            self.surface[a] = 0
-            if P.kind[a] == FLUID:
-                if self.kernel_sum(a) < self.threshold * self.lattice_sum:
-                    self.surface[a] = 1
+        for a in range(S.n):  # a constant end, the step's flag inside (SolverBase.live)
+            if S.live():
+                self.surface[a] = 0
+                if P.kind[a] == FLUID:
+                    if self.kernel_sum(a) < self.threshold * self.lattice_sum:
+                        self.surface[a] = 1
 
     @ti.func
     def compute_pass(self, dt, max_speed, serial: ti.template()):
@@ -106,27 +107,28 @@ class ParticleShifting:
         S = self.solver
         P = S.particles
         ti.loop_config(serialize=serial)
-        for a in range(S.live_n()):
-            self.shift[a] = ti.Vector.zero(float, S.dim)
-            if P.kind[a] == FLUID:
-                sums = ti.Struct(grad_c=ti.Vector.zero(float, S.dim), grad_sum=ti.Vector.zero(float, S.dim),
-                                 ksum=P.mass[a] / P.rho[a] * S.kernel.w0, band=0)
-                S.nsearch.for_each_neighbor(a, P.x, self.gradient_pair, sums)
-                grad_c, grad_sum, ksum, band = sums.grad_c, sums.grad_sum, sums.ksum, sums.band
-                if ti.static(self.keep_region):
-                    self.surface_region[a] = ti.max(band, self.surface[a])
-                speed = P.v[a].norm()
-                if ti.static(self.global_speed):
-                    speed = max_speed
-                dr = -shifting_diffusion(self.coefficient, S.h, speed, dt) * grad_c
-                if ksum < self.threshold * self.lattice_sum:
-                    dr = tangential_part(dr, grad_sum.normalized(1e-12))
-                elif band == 1:
-                    dr = no_outward_part(dr, -grad_sum.normalized(1e-12))
-                length = dr.norm()
-                if length > self.max_shift:
-                    dr *= self.max_shift / length
-                self.shift[a] = dr
+        for a in range(S.n):
+            if S.live():
+                self.shift[a] = ti.Vector.zero(float, S.dim)
+                if P.kind[a] == FLUID:
+                    sums = ti.Struct(grad_c=ti.Vector.zero(float, S.dim), grad_sum=ti.Vector.zero(float, S.dim),
+                                     ksum=P.mass[a] / P.rho[a] * S.kernel.w0, band=0)
+                    S.nsearch.for_each_neighbor(a, P.x, self.gradient_pair, sums)
+                    grad_c, grad_sum, ksum, band = sums.grad_c, sums.grad_sum, sums.ksum, sums.band
+                    if ti.static(self.keep_region):
+                        self.surface_region[a] = ti.max(band, self.surface[a])
+                    speed = P.v[a].norm()
+                    if ti.static(self.global_speed):
+                        speed = max_speed
+                    dr = -shifting_diffusion(self.coefficient, S.h, speed, dt) * grad_c
+                    if ksum < self.threshold * self.lattice_sum:
+                        dr = tangential_part(dr, grad_sum.normalized(1e-12))
+                    elif band == 1:
+                        dr = no_outward_part(dr, -grad_sum.normalized(1e-12))
+                    length = dr.norm()
+                    if length > self.max_shift:
+                        dr *= self.max_shift / length
+                    self.shift[a] = dr
 
     @ti.func
     def gradient_pair(self, a, b, r_ab, sums: ti.template()):
@@ -143,15 +145,14 @@ class ParticleShifting:
         if P.kind[b] == FLUID and r < S.support:
             sums.band = ti.max(sums.band, self.surface[b])
 
-
     @ti.func
     def move_pass(self, serial: ti.template()):
         """x_a += shift_a (fluid)."""
         S = self.solver
         P = S.particles
         ti.loop_config(serialize=serial)
-        for a in range(S.live_n()):
-            if P.kind[a] == FLUID:
+        for a in range(S.n):
+            if S.live() and P.kind[a] == FLUID:
                 P.x[a] += self.shift[a]
 
     def apply(self, dt: float, max_speed: float = 0.0) -> None:

@@ -93,27 +93,28 @@ class WCSPHSolver(SolverBase):
         """acc_a from every neighbour (pressure, viscosities, body force) and the delta-SPH density diffusion."""
         P = self.particles
         ti.loop_config(serialize=serial)
-        for a in range(self.live_n()):
-            if P.kind[a] == FLUID:
-                xa, p_a = P.x[a], P.p[a]
-                # tensile instability control: both pressure forms summed, one kept (compiled out without it)
-                sums = ti.Struct(va=P.v[a], rho_a=P.rho[a], p_a=p_a, acc=ti.Vector.zero(float, self.dim), drho=0.0,
-                                 near_wall=0, acc_tension=ti.Vector.zero(float, self.dim),
-                                 acc_pressure=ti.Vector.zero(float, self.dim))
-                self.nsearch.for_each_neighbor(a, P.x, self.force_pair, sums)
-                acc = sums.acc
-                if ti.static(self.features.tensile_instability_control):
-                    # Sun et al. 2017: the difference form for p_a < 0 outside the free-surface region
-                    in_tension = p_a < 0.0 and self.shifting.surface_region[a] == 0
-                    acc += ti.select(in_tension, sums.acc_tension, sums.acc_pressure)
-                if ti.static(self.features.gravity or self.features.central_force):
-                    acc += self.body_force(xa)
-                P.acc[a] = acc
-                if ti.static(self.kinematic_walls):
-                    self.near_wall[a] = sums.near_wall
-                if ti.static(self.features.density_diffusion != "none"):
-                    self.drho_diffusion[a] = sums.drho
-                self.accumulate_stats(a)
+        for a in range(self.n):
+            if self.live():
+                if P.kind[a] == FLUID:
+                    xa, p_a = P.x[a], P.p[a]
+                    # tensile instability control: both pressure forms summed, one kept (compiled out without it)
+                    sums = ti.Struct(va=P.v[a], rho_a=P.rho[a], p_a=p_a, acc=ti.Vector.zero(float, self.dim), drho=0.0,
+                                     near_wall=0, acc_tension=ti.Vector.zero(float, self.dim),
+                                     acc_pressure=ti.Vector.zero(float, self.dim))
+                    self.nsearch.for_each_neighbor(a, P.x, self.force_pair, sums)
+                    acc = sums.acc
+                    if ti.static(self.features.tensile_instability_control):
+                        # Sun et al. 2017: the difference form for p_a < 0 outside the free-surface region
+                        in_tension = p_a < 0.0 and self.shifting.surface_region[a] == 0
+                        acc += ti.select(in_tension, sums.acc_tension, sums.acc_pressure)
+                    if ti.static(self.features.gravity or self.features.central_force):
+                        acc += self.body_force(xa)
+                    P.acc[a] = acc
+                    if ti.static(self.kinematic_walls):
+                        self.near_wall[a] = sums.near_wall
+                    if ti.static(self.features.density_diffusion != "none"):
+                        self.drho_diffusion[a] = sums.drho
+                    self.accumulate_stats(a)
 
     @ti.func
     def force_pair(self, a, b, r_ab, sums: ti.template()):
@@ -183,11 +184,12 @@ class WCSPHSolver(SolverBase):
         is its own loop: forming v + dt a here for every pair cost ~40% of this pass on PySPH's scene.)"""
         P = self.particles
         ti.loop_config(serialize=serial)
-        for a in range(self.live_n()):
-            if P.kind[a] == FLUID:
-                sums = ti.Struct(va=P.v[a], drho=0.0)
-                self.nsearch.for_each_neighbor(a, P.x, self.continuity_pair, sums)
-                self.drho[a] = sums.drho
+        for a in range(self.n):
+            if self.live():
+                if P.kind[a] == FLUID:
+                    sums = ti.Struct(va=P.v[a], drho=0.0)
+                    self.nsearch.for_each_neighbor(a, P.x, self.continuity_pair, sums)
+                    self.drho[a] = sums.drho
 
     @ti.func
     def continuity_pair(self, a, b, r_ab, sums: ti.template()):
@@ -201,11 +203,12 @@ class WCSPHSolver(SolverBase):
         """v += dt a (fluid); `guard`: a drift by dt_drift follows, so the kinematic wall condition applies."""
         P = self.particles
         ti.loop_config(serialize=serial)
-        for a in range(self.live_n()):
-            if P.kind[a] == FLUID:
-                P.v[a] += dt * P.acc[a]
-                if ti.static(guard):
-                    self.wall_guard(a, dt_drift)
+        for a in range(self.n):
+            if self.live():
+                if P.kind[a] == FLUID:
+                    P.v[a] += dt * P.acc[a]
+                    if ti.static(guard):
+                        self.wall_guard(a, dt_drift)
 
     @ti.func
     def wall_guard(self, a, dt):
@@ -224,20 +227,21 @@ class WCSPHSolver(SolverBase):
         density; reflect at faces."""
         P = self.particles
         ti.loop_config(serialize=serial)
-        for a in range(self.live_n()):
-            if P.kind[a] == FLUID:
-                if ti.static(kick):
-                    P.v[a] += dt_kick * P.acc[a]
-                    self.wall_guard(a, dt)
-                P.x[a] += dt * P.v[a]
-                if ti.static(self.features.density == "continuity"):
-                    rate = self.drho[a]
-                    if ti.static(self.features.density_diffusion != "none"):
-                        rate += self.drho_diffusion[a]
-                    P.rho[a] += dt * rate
-                    P.p[a] = self.tait(P.rho[a])
-                if ti.static(self.features.reflecting):
-                    self.reflect(a)
+        for a in range(self.n):
+            if self.live():
+                if P.kind[a] == FLUID:
+                    if ti.static(kick):
+                        P.v[a] += dt_kick * P.acc[a]
+                        self.wall_guard(a, dt)
+                    P.x[a] += dt * P.v[a]
+                    if ti.static(self.features.density == "continuity"):
+                        rate = self.drho[a]
+                        if ti.static(self.features.density_diffusion != "none"):
+                            rate += self.drho_diffusion[a]
+                        P.rho[a] += dt * rate
+                        P.p[a] = self.tait(P.rho[a])
+                    if ti.static(self.features.reflecting):
+                        self.reflect(a)
 
     # -- the device-resident step ------------------------------------------------------------
     @ti.func
@@ -309,8 +313,9 @@ class WCSPHSolver(SolverBase):
         self.binding.build_passes(serial, gate)
         if ti.static(self.skin > 0.0):
             ti.loop_config(serialize=serial)
-            for a in range(self.n * gate[None]):
-                self.x_ref[a] = self.particles.x[a]
+            for a in range(self.n):
+                if gate[None]:
+                    self.x_ref[a] = self.particles.x[a]
         ti.loop_config(serialize=True)
         for _ in range(gate[None]):
             self.clock.builds[None] += 1

@@ -60,25 +60,23 @@ class CellSort:
                 y[d] = v
         return y
 
-    def _prefix_sum(self) -> None:
-        if self._use_executor:
-            if self._executor is None:
-                self._executor = ti.algorithms.PrefixSumExecutor(self.total_cells)
-                self._scan_buffer = ti.field(ti.i32, self.total_cells)
-            self._scan_buffer.copy_from(self._cell_count)
-            self._executor.run(self._scan_buffer)  # inclusive, in place
-            self._exclusive_from_inclusive(self._scan_buffer)
-        else:
-            self._scan_kernel()
-
     # ------------------------------------------------------------------ kernels
 
     @ti.func
     def _reach(self, count, gate: ti.template()):
-        """A loop's length: `count`, or 0 while `gate` (an i32 field of shape (), or None) holds 0."""
+        """A serial loop's length: `count`, or 0 while `gate` (an i32 field of shape (), or None) holds 0."""
         r = count
         if ti.static(_present(gate)):
             r = count * gate[None]
+        return r
+
+    @ti.func
+    def _open(self, gate: ti.template()):
+        """1, or gate[None] (0 or 1) when a gate is given: a parallel loop keeps its constant end and tests this
+        inside (a runtime end costs a GPU backend a 131072-thread grid-stride dispatch: linalg/reduction.py)."""
+        r = 1
+        if ti.static(_present(gate)):
+            r = gate[None]
         return r
 
     @ti.func
@@ -118,36 +116,39 @@ class CellSort:
             self._stats[0] = 0
             self._stats[1] = 0
         ti.loop_config(serialize=serial)
-        for c in range(self._reach(self.total_cells, gate)):
-            self._cell_count[c] = 0
+        for c in range(self.total_cells):
+            if self._open(gate):
+                self._cell_count[c] = 0
         ti.loop_config(serialize=serial)
-        for i in range(self._reach(self.n, gate)):
-            xi = self.wrap(x[i])
-            if ti.static(self._any_periodic):
-                x[i] = xi
-            outside = 0
-            for d in ti.static(range(self.dim)):
-                # bit test (ti.math.isnan), which fast-math cannot fold away; wrap turns inf into NaN
-                if ti.math.isnan(xi[d]):
-                    outside = 1
-                if ti.static(not self.periodic[d]):
-                    if xi[d] < ti.static(self.domain_lo[d]) or xi[d] > ti.static(self.domain_hi[d]):
+        for i in range(self.n):
+            if self._open(gate):
+                xi = self.wrap(x[i])
+                if ti.static(self._any_periodic):
+                    x[i] = xi
+                outside = 0
+                for d in ti.static(range(self.dim)):
+                    # bit test (ti.math.isnan), which fast-math cannot fold away; wrap turns inf into NaN
+                    if ti.math.isnan(xi[d]):
                         outside = 1
-            if outside:
-                ti.atomic_add(self._stats[1], 1)
-            c = self._linear(self._cell_coord(xi))
-            self._unsorted_cell[i] = c
-            self._slot_in_cell[i] = ti.atomic_add(self._cell_count[c], 1)
+                    if ti.static(not self.periodic[d]):
+                        if xi[d] < ti.static(self.domain_lo[d]) or xi[d] > ti.static(self.domain_hi[d]):
+                            outside = 1
+                if outside:
+                    ti.atomic_add(self._stats[1], 1)
+                c = self._linear(self._cell_coord(xi))
+                self._unsorted_cell[i] = c
+                self._slot_in_cell[i] = ti.atomic_add(self._cell_count[c], 1)
 
     @ti.func
     def _scan_pass(self, serial: ti.template(), gate: ti.template() = None):
         block = ti.static(self._scan_block)
         ti.loop_config(serialize=serial)
-        for b in range(self._reach(self._scan_blocks, gate)):
-            s = 0
-            for c in range(b * block, ti.min((b + 1) * block, self.total_cells)):
-                s += self._cell_count[c]
-            self._block_sum[b] = s
+        for b in range(self._scan_blocks):
+            if self._open(gate):
+                s = 0
+                for c in range(b * block, ti.min((b + 1) * block, self.total_cells)):
+                    s += self._cell_count[c]
+                self._block_sum[b] = s
         ti.loop_config(serialize=True)
         for b in range(self._reach(self._scan_blocks, gate)):  # serial exclusive scan over the block sums
             s = self._block_sum[b]
@@ -156,37 +157,35 @@ class CellSort:
             self._block_sum[b] = self.cell_start[self.total_cells]
             self.cell_start[self.total_cells] += s
         ti.loop_config(serialize=serial)
-        for b in range(self._reach(self._scan_blocks, gate)):
-            running = self._block_sum[b]
-            for c in range(b * block, ti.min((b + 1) * block, self.total_cells)):
-                self.cell_start[c] = running
-                running += self._cell_count[c]
-
-    @ti.kernel
-    def _exclusive_from_inclusive(self, inclusive: ti.template()):
-        for c in range(self.total_cells):
-            self.cell_start[c] = inclusive[c] - self._cell_count[c]
-        self.cell_start[self.total_cells] = inclusive[self.total_cells - 1]
+        for b in range(self._scan_blocks):
+            if self._open(gate):
+                running = self._block_sum[b]
+                for c in range(b * block, ti.min((b + 1) * block, self.total_cells)):
+                    self.cell_start[c] = running
+                    running += self._cell_count[c]
 
     @ti.func
     def _sort_pass(self, serial: ti.template(), gate: ti.template() = None):
         ti.loop_config(serialize=serial)
-        for i in range(self._reach(self.n, gate)):
-            c = self._unsorted_cell[i]
-            self.order[self.cell_start[c] + self._slot_in_cell[i]] = i
+        for i in range(self.n):
+            if self._open(gate):
+                c = self._unsorted_cell[i]
+                self.order[self.cell_start[c] + self._slot_in_cell[i]] = i
         # slots inside a cell were handed out by atomics in thread order: sort them by previous
         # index (insertion sort; cells hold a handful of particles and are mostly sorted already)
         ti.loop_config(serialize=serial)
-        for c in range(self._reach(self.total_cells, gate)):
-            begin = self.cell_start[c]
-            end = self.cell_start[c + 1]
-            for k in range(begin + 1, end):
-                v = self.order[k]
-                m = k
-                while m > begin and self.order[m - 1] > v:
-                    self.order[m] = self.order[m - 1]
-                    m -= 1
-                self.order[m] = v
+        for c in range(self.total_cells):
+            if self._open(gate):
+                begin = self.cell_start[c]
+                end = self.cell_start[c + 1]
+                for k in range(begin + 1, end):
+                    v = self.order[k]
+                    m = k
+                    while m > begin and self.order[m - 1] > v:
+                        self.order[m] = self.order[m - 1]
+                        m -= 1
+                    self.order[m] = v
         ti.loop_config(serialize=serial)
-        for k in range(self._reach(self.n, gate)):
-            self.cell_id[k] = self._unsorted_cell[self.order[k]]
+        for k in range(self.n):
+            if self._open(gate):
+                self.cell_id[k] = self._unsorted_cell[self.order[k]]

@@ -124,16 +124,13 @@ class NeighborSearch(CellSort, VerletLists, NeighborAccess):
         self.gate = ti.field(ti.i32, ())
         self._stats_cache: tuple[int, int] | None = (0, 0)
 
-        # Prefix sum. On CUDA: ti.algorithms.PrefixSumExecutor (warp-shuffle scan; it raises on
-        # other arches, and on Vulkan it assumes 32-wide subgroups). Elsewhere (CPU, Vulkan): a
-        # blocked scan in one kernel -- per-block sums in parallel, a serial scan over the
-        # ~sqrt(n_cells) block sums (ti.loop_config(serialize=True)), per-block scans in parallel.
+        # Prefix sum, on every arch: a blocked scan inside the build's one kernel -- per-block sums in
+        # parallel, a serial scan over the ~sqrt(n_cells) block sums (ti.loop_config(serialize=True)),
+        # per-block scans in parallel. (Taichi's PrefixSumExecutor runs on CUDA only, a launch of its own,
+        # and no GPU-less CI could run that branch: docs/gpu.md.)
         self._scan_block = max(256, int(math.isqrt(self.total_cells)) + 1)
         self._scan_blocks = (self.total_cells + self._scan_block - 1) // self._scan_block
         self._block_sum = ti.field(ti.i32, self._scan_blocks)
-        self._use_executor = ti.lang.impl.current_cfg().arch == ti.cuda
-        self._executor = None  # created lazily with its buffer
-        self._scan_buffer = None
 
         self._bindings: dict[tuple, "_Binding"] = {}
         # optional i32 field (permuted with the particles): pairs whose members both have group != 0
@@ -147,16 +144,10 @@ class NeighborSearch(CellSort, VerletLists, NeighborAccess):
         """Wrap, sort particles by cell (permuting `x` and `fields` alike) and build neighbour lists.
 
         The permutation of a given (x, fields) set is compiled into one kernel the first time that set
-        is seen; on the CPU and Vulkan the whole build is then a single launch. `serial`: every loop on
-        one thread (a solver's choice for small scenes on the CPU; the lists are the same).
+        is seen; the whole build is then a single launch. `serial`: every loop on one thread (a solver's
+        choice for small scenes on the CPU; the lists are the same).
         """
-        binding = self.binding(x, fields)
-        if self._use_executor:
-            self._assign_cells(x)
-            self._prefix_sum()
-            binding.sort_permute_find(serial)
-        else:
-            binding.build_all(serial)
+        self.binding(x, fields).build_all(serial)
         self._stats_cache = None
 
     def binding(self, x, fields: Sequence = ()) -> "_Binding":
@@ -235,14 +226,16 @@ class _Binding:
         """Apply `order` to x and every bound field (gather into scratch, copy back)."""
         ns = self.ns
         ti.loop_config(serialize=serial)
-        for i in range(ns._reach(ns.n, gate)):
-            j = ns.order[i]
-            for k in ti.static(self.per_particle):
-                self.tmps[k][i] = self.fields[k][j]
+        for i in range(ns.n):
+            if ns._open(gate):
+                j = ns.order[i]
+                for k in ti.static(self.per_particle):
+                    self.tmps[k][i] = self.fields[k][j]
         ti.loop_config(serialize=serial)
-        for i in range(ns._reach(ns.n, gate)):
-            for k in ti.static(self.per_particle):
-                self.fields[k][i] = self.tmps[k][i]
+        for i in range(ns.n):
+            if ns._open(gate):
+                for k in ti.static(self.per_particle):
+                    self.fields[k][i] = self.tmps[k][i]
         for k in ti.static(self.other):
             f = ti.static(self.fields[k])
             tmp = ti.static(self.tmps[k])
@@ -268,18 +261,11 @@ class _Binding:
     @ti.func
     def build_passes(self, serial: ti.template(), gate: ti.template()):
         """The whole build as passes for a solver's own kernels; every loop is empty while gate[None] == 0.
-        (Always the blocked scan: on CUDA the warp-scan executor would be a launch of its own.) Fields with
-        more than one index per particle (`other`) are not gated: the caller binds per-particle fields only."""
+        Fields with more than one index per particle (`other`) are not gated: the caller binds per-particle
+        fields only."""
         ns = self.ns
         ns._assign_cells_pass(self.x, serial, gate)
         ns._scan_pass(serial, gate)
         ns._sort_pass(serial, gate)
         self.permute_pass(serial, gate)
         ns._find_pass(self.x, serial, gate)
-
-    @ti.kernel
-    def sort_permute_find(self, serial: ti.template()):
-        ns = self.ns
-        ns._sort_pass(serial)
-        self.permute_pass(serial)
-        ns._find_pass(self.x, serial)

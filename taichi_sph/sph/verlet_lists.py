@@ -116,7 +116,8 @@ class VerletLists:
     def _find_pass(self, x: ti.template(), serial: ti.template(), gate: ti.template() = None):
         if ti.static(self.lists):
             ti.loop_config(serialize=serial)
-            for i in range(self._reach(self.n, gate)):
-                found = self._gather_neighbors(x, i)
-                self.count[i] = ti.min(found, self.max_neighbors)
-                ti.atomic_max(self._stats[0], found)
+            for i in range(self.n):
+                if self._open(gate):
+                    found = self._gather_neighbors(x, i)
+                    self.count[i] = ti.min(found, self.max_neighbors)
+                    ti.atomic_max(self._stats[0], found)

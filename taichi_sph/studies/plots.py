@@ -15,7 +15,7 @@ SOLVER_COLOURS = {"wcsph": "tab:blue", "isph": "tab:orange"}
 LOG_COLUMNS = {"dt", "ppe_residual"}  # spanning decades: log axis
 
 
-def _pyplot():
+def pyplot():
     import matplotlib
 
     matplotlib.use("Agg", force=True)
@@ -23,7 +23,7 @@ def _pyplot():
     return plt
 
 
-def _save(plt, fig, path: Path) -> Path:
+def save_figure(plt, fig, path: Path) -> Path:
     """Lay out, write the PNG (creating its folder) and free the figure."""
     fig.tight_layout()
     path = Path(path)
@@ -33,7 +33,7 @@ def _save(plt, fig, path: Path) -> Path:
     return path
 
 
-def _colour(label: str, i: int) -> str:
+def solver_colour(label: str, i: int) -> str:
     return SOLVER_COLOURS.get(label, f"C{i}")
 
 
@@ -44,7 +44,7 @@ def plot_timeseries(series: dict[str, dict[str, np.ndarray]], out_dir: Path,
     `series` maps a label (e.g. the solver) to `read_timeseries` output. A column only one run has
     (ISPH's ppe_iterations) is drawn for that run alone.
     """
-    plt = _pyplot()
+    plt = pyplot()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     columns: list[str] = []
@@ -63,7 +63,7 @@ def plot_timeseries(series: dict[str, dict[str, np.ndarray]], out_dir: Path,
                 ok &= y > 0
             if not ok.any():
                 continue
-            ax.plot(t[ok], y[ok], color=_colour(label, i), label=label, lw=1.4)
+            ax.plot(t[ok], y[ok], color=solver_colour(label, i), label=label, lw=1.4)
             drawn = True
         if not drawn:
             plt.close(fig)
@@ -75,7 +75,7 @@ def plot_timeseries(series: dict[str, dict[str, np.ndarray]], out_dir: Path,
         ax.set_title(col)
         ax.grid(alpha=0.3)
         ax.legend()
-        paths.append(_save(plt, fig, out_dir / f"{col}.png"))
+        paths.append(save_figure(plt, fig, out_dir / f"{col}.png"))
     return paths
 
 
@@ -85,7 +85,7 @@ def plot_error_vs_time(points: dict[str, list[tuple[float, float, float]]], metr
 
     `points[solver]` = [(dx, wall_time_s, error), ...]; non-positive or missing values are skipped.
     """
-    plt = _pyplot()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(6.4, 4.4), dpi=100)
     drawn = False
     for i, (label, pts) in enumerate(points.items()):
@@ -96,7 +96,7 @@ def plot_error_vs_time(points: dict[str, list[tuple[float, float, float]]], metr
         order = (orders or {}).get(label)
         name = label if order is None else f"{label} (order {order:.2f})"
         ts, es = [p[1] for p in pts], [p[2] for p in pts]
-        ax.plot(ts, es, "o-", color=_colour(label, i), label=name)
+        ax.plot(ts, es, "o-", color=solver_colour(label, i), label=name)
         for dx, t, e in pts:
             ax.annotate(f"dx={dx:g}", (t, e), textcoords="offset points", xytext=(4, 4), fontsize=8)
         drawn = True
@@ -110,14 +110,14 @@ def plot_error_vs_time(points: dict[str, list[tuple[float, float, float]]], metr
     ax.set_ylabel(metric)
     ax.set_title(f"{metric} against run time")
     ax.grid(alpha=0.3, which="both")
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)
 
 
 def plot_stability_map(cfl: list[float], ratio: list[float], density_error: np.ndarray, labels: list[list[str]],
                        path: Path, title: str, unstable: np.ndarray | None = None) -> Path:
     """Heatmap over (CFL number, c0 / U): colour = log10 max density error of the stable runs, text =
     verdict per cell; unstable cells are grey and hatched. `density_error[i, j]` belongs to ratio[i] (row) and cfl[j] (column)."""
-    plt = _pyplot()
+    plt = pyplot()
     from matplotlib.colors import Normalize
 
     err = np.asarray(density_error, dtype=float)
@@ -143,4 +143,4 @@ def plot_stability_map(cfl: list[float], ratio: list[float], density_error: np.n
     ax.set_ylabel("c0 / U (fluid.c0_factor)")
     ax.set_title(title, fontsize=10)
     fig.colorbar(im, ax=ax, label="log10 max |rho - rho0| / rho0")
-    return _save(plt, fig, path)
+    return save_figure(plt, fig, path)

@@ -32,23 +32,24 @@ class GalerkinAssembly:
             self.collect_active(l, ti.static(self.one_thread(serial, l)))
 
     @ti.func
-    def collect_active(self, l, serial: ti.template()):
+    def collect_active(self, l: ti.template(), serial: ti.template()):
         """List level l's non-empty cells of its box (in box order on one thread; in any order in parallel:
         every pass over the list computes each cell from its own inputs). An empty cell is never written by
         the V-cycle, so its iterates are zeroed here, where a coarse correction may read them."""
         base = self.lv_offset[l]
         self.active_count[l] = 0
         ti.loop_config(serialize=serial)
-        for k in range(self.box_count[l]):
-            i, c = self.box_cell(l, k)
-            if self.dinv[base + c] > 0.0:
-                slot = ti.atomic_add(self.active_count[l], 1)
-                self.active[base + slot] = c
-                self.active_coord[base + slot] = i
-            else:
-                self.b[base + c] = 0.0
-                self.x[base + c] = 0.0
-                self.y[base + c] = 0.0
+        for k in range(ti.static(self.levels[l].count)):  # a constant end (linalg/reduction.py): the box's cells
+            if k < self.box_count[l]:
+                i, c = self.box_cell(l, k)
+                if self.dinv[base + c] > 0.0:
+                    slot = ti.atomic_add(self.active_count[l], 1)
+                    self.active[base + slot] = c
+                    self.active_coord[base + slot] = i
+                else:
+                    self.b[base + c] = 0.0
+                    self.x[base + c] = 0.0
+                    self.y[base + c] = 0.0
 
     @ti.func
     def active_boxes(self, n_levels):
@@ -104,18 +105,19 @@ class GalerkinAssembly:
         """A_{l+1}[I', J'] = sum of A_l[I, J] over the children I of I' and J of J'."""
         fine, coarse = self.lv_offset[l], self.lv_offset[l + 1]
         ti.loop_config(serialize=serial)
-        for C in range(self.lv_count[l + 1]):
-            row = ti.Vector.zero(float, self.n_slots)
-            iC = self.coord(l + 1, C)
-            for ch in range(ti.static(2 ** self.dim)):
-                exists, i = self.child(l, iC, ch)
-                if exists:
-                    c = self.linear(l, i)
-                    for s in range(self.n_slots):
-                        a_cs = self.stencil[fine + c, s]
-                        if a_cs != 0.0:
-                            _, j = self.neighbour(l, i, s)
-                            row[self.slot_of(l + 1, self.parent(l, j) - iC)] += a_cs
-            for s in ti.static(range(self.n_slots)):
-                self.stencil[coarse + C, s] = row[s]
-            self.dinv[coarse + C] = self.inverse_diagonal(row)
+        for C in range(ti.static(self.levels[1].count)):  # a constant end, level 1 the largest (linalg/reduction.py)
+            if C < self.lv_count[l + 1]:
+                row = ti.Vector.zero(float, self.n_slots)
+                iC = self.coord(l + 1, C)
+                for ch in range(ti.static(2 ** self.dim)):
+                    exists, i = self.child(l, iC, ch)
+                    if exists:
+                        c = self.linear(l, i)
+                        for s in range(self.n_slots):
+                            a_cs = self.stencil[fine + c, s]
+                            if a_cs != 0.0:
+                                _, j = self.neighbour(l, i, s)
+                                row[self.slot_of(l + 1, self.parent(l, j) - iC)] += a_cs
+                for s in ti.static(range(self.n_slots)):
+                    self.stencil[coarse + C, s] = row[s]
+                self.dinv[coarse + C] = self.inverse_diagonal(row)

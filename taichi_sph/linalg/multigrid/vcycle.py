@@ -53,19 +53,21 @@ class CellVCycle:
         if live:
             self.first_small_now[None] = first
         for l in ti.static(range(first)):
-            self.smooth_cells(l, self.x, live)
+            self.smooth_cells(l, self.x, live, ti.static(self.levels[l].count))
             ti.loop_config(serialize=ti.static(self.small[l + 1]))
-            for k in range(self.active_count[l + 1] * live):
-                self.restrict_cell(l, k)
+            for k in range(ti.static(self.levels[l + 1].count)):  # constant ends (linalg/reduction.py)
+                if k < self.active_count[l + 1] * live:
+                    self.restrict_cell(l, k)
 
     @ti.func
     def v_cycle_up(self, serial: ti.template(), live):
         """The large levels' prolongation and smoothing, from the first small level up."""
         first = ti.static(self.first_small_level(serial))
         for m in ti.static(range(first)):
-            for k in range(self.active_count[first - 1 - m] * live):
-                self.prolong_cell(first - 1 - m, k)
-            self.smooth_cells(first - 1 - m, self.y, live)
+            for k in range(ti.static(self.levels[first - 1 - m].count)):
+                if k < self.active_count[first - 1 - m] * live:
+                    self.prolong_cell(first - 1 - m, k)
+            self.smooth_cells(first - 1 - m, self.y, live, ti.static(self.levels[first - 1 - m].count))
 
     @ti.func
     def sweep_cell(self, l, k, src: ti.template(), dst: ti.template()):
@@ -112,19 +114,24 @@ class CellVCycle:
         self.y[fine + c] = u + self.omega * self.dinv[fine + c] * (self.b[fine + c] - au)
 
     @ti.func
-    def smooth_cells(self, l, v: ti.template(), live):
+    def smooth_cells(self, l, v: ti.template(), live, end: ti.template()):
         """The cell_sweeps - 1 weighted-Jacobi sweeps after the first on level l, alternating between v and the
-        scratch field (parallel loops when called at a kernel's top level, else inside the caller's loop)."""
+        scratch field (parallel loops when called at a kernel's top level, else inside the caller's loop). `end`:
+        the loops' end, the level's cell count as a constant at the top level (linalg/reduction.py), else its
+        runtime count of non-empty cells."""
         for sweep in ti.static(range(self.cell_sweeps - 1)):
             if ti.static(sweep % 2 == 0):
-                for k in range(self.active_count[l] * live):
-                    self.sweep_cell(l, k, v, self.swept)
+                for k in range(end):
+                    if k < self.active_count[l] * live:
+                        self.sweep_cell(l, k, v, self.swept)
             else:
-                for k in range(self.active_count[l] * live):
-                    self.sweep_cell(l, k, self.swept, v)
+                for k in range(end):
+                    if k < self.active_count[l] * live:
+                        self.sweep_cell(l, k, self.swept, v)
         if ti.static(self.cell_sweeps % 2 == 0):  # an odd number of extra sweeps ended in the scratch field
-            for k in range(self.active_count[l] * live):
-                self.copy_cell(l, k, self.swept, v)
+            for k in range(end):
+                if k < self.active_count[l] * live:
+                    self.copy_cell(l, k, self.swept, v)
 
     @ti.func
     def small_levels_cycle(self, first, last, live):
@@ -133,7 +140,7 @@ class CellVCycle:
         ti.loop_config(serialize=True)
         for _ in range(live):
             for l in range(first, last):
-                self.smooth_cells(l, self.x, 1)
+                self.smooth_cells(l, self.x, 1, self.active_count[l])
                 for k in range(self.active_count[l + 1]):
                     self.restrict_cell(l, k)
             base, count = self.lv_offset[last], self.lv_count[last]
@@ -150,4 +157,4 @@ class CellVCycle:
                 l = last - 1 - m
                 for k in range(self.active_count[l]):
                     self.prolong_cell(l, k)
-                self.smooth_cells(l, self.y, 1)
+                self.smooth_cells(l, self.y, 1, self.active_count[l])

@@ -1,0 +1,142 @@
+"""`taichi-sph validate`: the scene list from the configs, the quick settings, the report through the real command,
+the exit code of a failing scene; and the cavity metric's Ghia Re 1000 reference."""
+
+from __future__ import annotations
+
+import shutil
+
+import numpy as np
+import pytest
+import yaml
+
+from taichi_sph.cli.main import main
+from taichi_sph.config.loader import bundled_configs_dir, load_config
+from taichi_sph.studies.compare import SOLVERS, derive_config
+from taichi_sph.studies.validate import report_markdown, validation_scenes
+from taichi_sph.studies.validate_checks import QUICK, checks_for, quick_overrides
+from taichi_sph.validation import reference as ref
+from taichi_sph.validation.metrics.flows import CavityMetric
+
+BUNDLED = bundled_configs_dir()
+
+
+def table_rows(report: str) -> list[list[str]]:
+    """The report's table rows (header and rule left out), cells stripped."""
+    lines = [ln for ln in report.splitlines() if ln.startswith("| ")]
+    return [[c.strip() for c in ln.strip("|").split(" | ")] for ln in lines[1:]]
+
+
+# ----------------------------------------------------------------------------- the scene list
+def test_the_scenes_are_the_bundled_configs_with_metrics():
+    scenes = [p.stem for p in validation_scenes(BUNDLED)]
+    expected = [p.stem for p in sorted(BUNDLED.glob("*.yaml")) if load_config(p).metrics]
+    assert scenes == expected
+    assert "cavity_re1000_2d" in scenes and "cavity_2d" in scenes and "dam_break_3d" not in scenes
+
+
+def test_a_new_validation_config_is_picked_up(tmp_path):
+    shutil.copy(BUNDLED / "hydrostatic_2d.yaml", tmp_path / "hydrostatic_2d.yaml")
+    (tmp_path / "deep_tank.yaml").write_text("extends: hydrostatic_2d.yaml\nfluid: {rho0: 998.0}\n")
+    data = yaml.safe_load((BUNDLED / "hydrostatic_2d.yaml").read_text())
+    data.pop("metrics")
+    (tmp_path / "no_metric.yaml").write_text(yaml.safe_dump(data))
+    assert [p.stem for p in validation_scenes(tmp_path)] == ["deep_tank", "hydrostatic_2d"]
+
+
+def test_every_bundled_scene_has_quick_settings_that_load_with_both_solvers():
+    for path in validation_scenes(BUNDLED):
+        cfg = load_config(path)
+        assert cfg.name in QUICK, f"{cfg.name}: add its --quick row to validate_checks.QUICK"
+        assert [c for spec in cfg.metrics for c in checks_for(cfg, spec)], f"{cfg.name}: no checked metric"
+        for solver in SOLVERS:
+            quick = derive_config(cfg, [f"solver={solver}"] + quick_overrides(cfg))
+            assert quick.particles.dx >= cfg.particles.dx and quick.time.t_end <= cfg.time.t_end
+
+
+# ----------------------------------------------------------------------------- the cavity at Re 1000
+def test_ghia_re1000_centrelines_are_the_published_table():
+    """Ghia, Ghia & Shin (1982) Tables I and II, Re = 1000 column."""
+    (y, u), (x, v) = ref.ghia_centerlines(1000)
+    u_at = dict(zip(np.round(y, 4), u))
+    v_at = dict(zip(np.round(x, 4), v))
+    assert u_at[0.9766] == pytest.approx(0.65928)
+    assert u_at[0.5] == pytest.approx(-0.06080)
+    assert u_at[0.1719] == pytest.approx(-0.38289)  # the minimum of u
+    assert u_at[0.0547] == pytest.approx(-0.18109)
+    assert v_at[0.9063] == pytest.approx(-0.51550)  # the minimum of v
+    assert v_at[0.1563] == pytest.approx(0.37095)   # the maximum of v
+    assert v_at[0.5] == pytest.approx(0.02526)
+    assert len(y) == len(x) == 17 and np.all(np.diff(y) > 0) and np.all(np.diff(x) > 0)
+    assert (u[0], u[-1], v[0], v[-1]) == (0.0, 1.0, 0.0, 0.0)
+    (y100, u100), _ = ref.ghia_centerlines(100)
+    assert dict(zip(np.round(y100, 4), u100))[0.5] == pytest.approx(-0.20581)
+
+
+def test_the_cavity_metric_compares_with_the_scenes_reynolds_number():
+    re1000 = load_config(BUNDLED / "cavity_re1000_2d.yaml")
+    assert re1000.particles.dx == pytest.approx(0.01)  # 100 x 100 particles (issue 26)
+    assert CavityMetric(re1000, re1000.metrics[0]).reynolds == 1000
+    re100 = load_config(BUNDLED / "cavity_2d.yaml")
+    assert CavityMetric(re100, re100.metrics[0]).reynolds == 100
+    checks = checks_for(re1000, re1000.metrics[0])
+    assert checks[0].target == 0.02 and "Re 1000" in checks[0].reference
+    # another Reynolds number is refused: tests/test_validation.py
+
+
+# ----------------------------------------------------------------------------- the report
+def test_the_report_has_one_dated_line_and_rows_in_the_given_order():
+    rows = [dict(scene=s, solver="wcsph", metric="m", ours="0.1", reference="r", resolution="dx 0.1", wall="1.0",
+                 status="no target") for s in ("b_scene", "a_scene")]
+    text = report_markdown(rows, {"b_scene": "f/b_scene.png"}, quick=True, command="taichi-sph validate --quick",
+                           header="Generated 2026-01-01 on a machine")
+    assert [r[0] for r in table_rows(text)] == ["b_scene", "a_scene"]
+    assert text.count("2026") == 1 and "not** the validated figures" in text
+    assert "![b_scene](f/b_scene.png)" in text
+
+
+def test_quick_run_of_a_tiny_scene_writes_the_table_with_numbers(tmp_path, capsys):
+    configs = tmp_path / "configs"
+    configs.mkdir()
+    shutil.copy(BUNDLED / "hydrostatic_2d.yaml", configs / "hydrostatic_2d.yaml")
+    out = tmp_path / "report" / "validation_report.md"
+    rc = main(["validate", "--quick", "--configs", str(configs), "--solvers", "wcsph", "--out", str(out),
+               "--runs", str(tmp_path / "runs"), "--set", "time.t_end=0.02", "--quiet"])
+    assert rc == 0
+    text = out.read_text()
+    rows = table_rows(text)
+    assert len(rows) == 1
+    scene, solver, metric, ours, reference, resolution, wall, status = rows[0]
+    assert (scene, solver, metric) == ("hydrostatic_2d", "wcsph", "pressure, rel. L2 error")
+    assert 0 < float(ours) < 0.1                    # the pressure error after 0.02 s at dx 0.05
+    assert "rho0 g (H - y)" in reference and "target <= 0.001" in reference
+    assert resolution == "dx 0.05, 400 fluid, to t = 0.02"
+    assert float(wall) > 0
+    assert status in ("meets target", "misses target")
+    assert "--quick --configs" in text and "(quick)" in text
+    assert (out.parent / "validation_report_figures" / "hydrostatic_2d.png").stat().st_size > 1000
+
+
+def test_a_failing_scene_is_a_row_and_the_exit_code(tmp_path, capsys):
+    configs = tmp_path / "configs"
+    configs.mkdir()
+    data = yaml.safe_load((BUNDLED / "cavity_2d.yaml").read_text())
+    data["fluid"]["nu"] = 0.02  # Re 50: Ghia has no table, the metric refuses the run
+    (configs / "cavity_re50.yaml").write_text(yaml.safe_dump(data))
+    (configs / "broken.yaml").write_text("particles: {dx: -1}\nmetrics:\n  - {type: hydrostatic, depth: 1.0}\n")
+    out = tmp_path / "report.md"
+    rc = main(["validate", "--configs", str(configs), "--solvers", "wcsph", "--out", str(out),
+               "--runs", str(tmp_path / "runs"), "--set", "particles.dx=0.05", "--set", "time.t_end=0.01"])
+    assert rc == 1  # a failed case, as compare and sweep
+    rows = {r[0]: r for r in table_rows(out.read_text())}
+    assert rows["broken"][-1].startswith("failed: invalid config")
+    assert rows["cavity_re50"][-1].startswith("failed: ") and "Re = 100 or 1000" in rows["cavity_re50"][-1]
+    assert rows["cavity_re50"][3] == "-"
+    captured = capsys.readouterr()
+    assert "Traceback" not in captured.out + captured.err
+    assert "cavity_re50 wcsph: failed" in captured.out
+
+
+def test_an_unknown_scene_is_a_usage_error(capsys):
+    assert main(["validate", "--scenes", "no_such_scene"]) == 2
+    err = capsys.readouterr().err
+    assert "no validation scene 'no_such_scene'" in err and "cavity_re1000_2d" in err
