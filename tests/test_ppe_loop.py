@@ -43,7 +43,7 @@ def test_runs_do_not_depend_on_check_every(method):
         runs[k] = (solver.iterations, solver.residuals, by_id(solver), solver.t)
     its = runs[1][0]
     assert min(its) > 3 and max(its) < 100  # they iterated, and not to the cap
-    assert len(set(i % 3 for i in its)) > 1  # not all multiples of 3: stopping inside a batch is exercised
+    assert any(i % 3 for i in its)  # not all multiples of 3: stopping inside a batch of 3 is exercised
     for k in (3, 50):
         assert runs[k][0] == its and runs[k][1] == runs[1][1] and runs[k][3] == runs[1][3]
         for key in ("x", "v", "p"):
