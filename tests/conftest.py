@@ -52,6 +52,7 @@ SLOW = {
     "test_drops.py::test_isph_defaults_keep_a_users_drop_within_two_percent": "71 s under load 6 (~25 s quiet): ISPH to t = 0.4",
     # the wave with ISPH's defaults over 3 periods (the two short unstable set-ups stay default)
     "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods": "~35 s quiet, 70 s loaded: to t = 5",
+    "test_standing_wave.py::test_wcsph_defaults_keep_the_wave_for_three_periods": "~70 s quiet, 134 s loaded: to t = 5",
     # three of the five kill moments (the other two, rows 13 and 20, and the SIGINT one stay in the default
     # set): each is a dam-break child process killed, then resumed in-process, ~23 s; the first one in the
     # module also runs the uninterrupted reference (83 s)

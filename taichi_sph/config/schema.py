@@ -14,6 +14,13 @@ from typing import Any
 
 AUTO = "auto"
 
+# h / dx when a scene does not set particles.hdx. WCSPH, 2.0 (~50 neighbours in 2D): at 1.3 (~21) a standing wave
+# with no diffusion and no shifting turned its lattice into noise within half a period (kinetic energy 2 -> 5 J,
+# period -6%, amplitude 0.64 of theory after 3 periods); at 2.0 it keeps it (period -1.2%, amplitude 1.01,
+# energy -0.3% a period: standing_wave_2d at dx 0.025). ISPH, 1.3: its summation density pairs at h = 2 dx
+# on the stretching drop (0.13 dx, a void), and its wave runs at 1.3 (docs/isph.md).
+DEFAULT_HDX = {"wcsph": 2.0, "isph": 1.3}
+
 
 def opt(default: Any = dataclasses.MISSING, doc: str = "", *, unit: str = "", choices: tuple | None = None,
         minimum: float | None = None, positive: bool = False, factory: Any = None) -> Any:
@@ -35,7 +42,8 @@ class Domain:
 @dataclass(frozen=True)
 class Particles:
     dx: float = opt(0.02, "initial particle spacing", unit="m", positive=True)
-    hdx: float = opt(1.3, "smoothing length over spacing, h = hdx * dx", positive=True)
+    hdx: float | None = opt(None, "smoothing length over spacing, h = hdx * dx; None = the solver's default "
+                                  "(DEFAULT_HDX: 2.0 for WCSPH, 1.3 for ISPH)", positive=True)
     kernel: str = opt("wendland_c2", "smoothing kernel", choices=("cubic_spline", "wendland_c2", "wendland_c4",
                                                                   "quintic_spline", "gaussian", "poly6_spiky"))
     max_neighbors: int | str = opt(AUTO, "capacity of each particle's neighbour list ('auto': 2.5x the lattice count)")
@@ -368,8 +376,9 @@ class Config:
 
     @property
     def hdx(self) -> float:
-        """h / dx for this run's solver (isph.hdx or particles.hdx)."""
-        return self.for_solver("hdx", self.particles.hdx)
+        """h / dx for this run's solver (isph.hdx, particles.hdx, or the solver's DEFAULT_HDX)."""
+        shared = self.particles.hdx if self.particles.hdx is not None else DEFAULT_HDX[self.solver]
+        return self.for_solver("hdx", shared)
 
     @property
     def central_force_center(self) -> tuple[float, ...]:

@@ -234,9 +234,9 @@ class Simulation:
         """The timeseries row of this output time: diagnostics, probes, particle order, metrics, solver extras."""
         cfg = self.cfg
         f = state["kind"] == FLUID
-        row = {"t": solver.t, "step": solver.step_count, "dt": dt,
-               "kinetic_energy": diag.kinetic_energy(state["v"][f], state["mass"][f]),
-               **self.energy.measure(state, self.loop),
+        kinetic = diag.kinetic_energy(state["v"][f], state["mass"][f])
+        row = {"t": solver.t, "step": solver.step_count, "dt": dt, "kinetic_energy": kinetic,
+               **self.energy.measure(state, self.loop, kinetic),
                "max_speed": diag.max_speed(state["v"][f]),
                "max_density_error": diag.max_density_error(state["rho"][f], cfg.fluid.rho0)}
         probes = {p.name: probe_value(state, p.position, p.quantity, solver.support, solver.kernel.w_np)

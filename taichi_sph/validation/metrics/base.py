@@ -37,12 +37,12 @@ def fluid_mask(state: dict) -> np.ndarray:
 
 def probe_value(state: dict, position, quantity: str, support: float, w_np) -> float:
     """Shepard-interpolated fluid quantity at a point: sum_b q_b W_b V_b / sum_b W_b V_b; `elevation`: the free
-    surface's height above the position's horizontal coordinates (validation/elevation.py, half-width = support)."""
+    surface's height above the position's horizontal coordinates (validation/elevation.py, half-width 3 dx)."""
     f = fluid_mask(state)
     x = state["x"][f]
     if quantity == "elevation":
         volume = state["mass"][f] / state["rho"][f]
-        return surface_elevation(x, volume, np.asarray(position, dtype=np.float64)[:-1], support)
+        return surface_elevation(x, volume, np.asarray(position, dtype=np.float64)[:-1])
     r = np.linalg.norm(x - np.asarray(position), axis=1)
     near = r < support
     if not near.any():

@@ -4,7 +4,8 @@ Mode 1 of a tank of length L and depth d: k = pi / L, omega^2 = g k tanh(k d) (t
 surface eta(x, t) = a cos(k (x - x0)) sin(omega t) exp(-2 nu k^2 t) (viscous decay of a free-surface wave,
 Lamb 1932 s. 348). The run starts at the phase eta = 0 with the potential-flow velocity of that phase
 (configs/standing_wave_2d.yaml). Elevations are read next to both walls (validation/elevation.py), relative to their
-reading at the start (where theory gives eta = 0): that removes the lattice's partition-of-unity offset.
+reading at the start (where theory gives eta = 0), above the tank's floor (a floor read from the lowest particles moves with the wave:
++1% of amplitude).
 """
 
 from __future__ import annotations
@@ -69,8 +70,8 @@ class StandingWaveMetric(MetricObserver):
         x, v, m, rho = state["x"][f], state["v"][f], state["mass"][f], state["rho"][f]
         if self.rest is None:
             self.rest = rest_state(self.cfg, m)
-        left = surface_elevation(x, m / rho, self.x_left, self.margin)
-        right = surface_elevation(x, m / rho, self.x_right, self.margin)
+        left = surface_elevation(x, m / rho, self.x_left, self.margin, floor=self.spec.floor)
+        right = surface_elevation(x, m / rho, self.x_right, self.margin, floor=self.spec.floor)
         if self.offset is None:  # the lattice's partition-of-unity error (0.1% of the depth) and the rest level:
             self.offset = (left - self.theory(self.x_left, t), right - self.theory(self.x_right, t))
         left, right = left - self.offset[0], right - self.offset[1]
