@@ -9,8 +9,8 @@ from taichi_sph.config import load_config
 from taichi_sph.config.loader import bundled_configs_dir
 from taichi_sph.scene.bodies import FLUID, build_particles
 from taichi_sph.validation.elevation import surface_elevation
-from taichi_sph.validation.metrics.base import probe_value
 from taichi_sph.validation.energy import elastic_energy, potential_energy, rest_state, tait_elastic_energy
+from taichi_sph.validation.metrics.base import probe_value
 from taichi_sph.validation.metrics.standing_wave import observed_period, standing_wave_omega
 
 CONFIGS = bundled_configs_dir()
