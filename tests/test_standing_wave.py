@@ -1,11 +1,12 @@
-"""The standing wave (configs/standing_wave_2d.yaml, dx = 0.025, 3.2k fluid particles) run with ISPH's defaults,
-and set-ups that must not end "ok". Linear theory: period 1.6714 s, E0 = rho g a^2 L / 4 = 1.96 J.
+"""The standing wave (configs/standing_wave_2d.yaml, dx = 0.025, 3.2k fluid particles) run with each solver's
+defaults, and set-ups that must not end "ok". Linear theory: period 1.6714 s, E0 = rho g a^2 L / 4 = 1.96 J.
 
-What the bounds hold (measured December 2026 on the 2-core VM, docs/isph.md): ISPH's defaults give period +1.00%,
-left/right asymmetry 0.41%, amplitude 1.045 of theory after 3 periods, energy +1.6% a period, peak +20% at a crest
-phase (h = 1.3 dx). Before the shift's surface-band projection and blend 1.0 the same run was "unstable" at t = 0.17 s
-(energy +42%). The issue's targets (period < 0.5%, amplitude within 3%, -1% .. +0.5% a period) are not met yet;
-these bounds are today's numbers with a margin, so a regression fails here."""
+What the bounds hold (measured December 2026 on the 2-core VM, docs/isph.md, docs/wcsph.md; amplitudes read with the
+B-spline elevation window): ISPH's defaults give period +0.92%, left/right asymmetry 0.52%, amplitude 1.021 of theory
+after 3 periods, energy +1.6% a period, peak +20% at a crest phase (h = 1.3 dx); WCSPH's (h = 2 dx) -1.01%, 0.50%,
+0.997, -0.27%. Before the shift's surface-band projection and blend 1.0 the ISPH run was "unstable" at t = 0.17 s
+(energy +42%). The issue's period target (< 0.5%) is not met at this dx by either solver; these bounds are today's
+numbers with a margin, so a regression fails here."""
 
 import pytest
 
@@ -21,13 +22,14 @@ def wave(tmp_path, t_end, *overrides):
 
 
 def test_wcsph_defaults_keep_the_wave_for_three_periods(tmp_path):
-    """WCSPH's defaults (h = 2 dx, no diffusion, no shifting; docs/wcsph.md): period -1.2%, asymmetry 0.12%,
-    amplitude 1.010, energy -0.27% a period (dx 0.025). The period is outside the issue's 0.5%."""
+    """WCSPH's defaults (h = 2 dx, no diffusion, no shifting; docs/wcsph.md): period -1.01%, asymmetry 0.50%,
+    amplitude 0.997, energy -0.27% a period (dx 0.025). The period is outside the issue's 0.5% (-0.58% at dx 0.0125:
+    a first-order spatial error)."""
     s = wave(tmp_path, 5.0, "solver=wcsph")
     assert s["status"] == "ok" and s["energy"]["guard"] == "on"
     e = s["errors"]
     assert -0.02 < e["period_error"] < 0.0
-    assert abs(e["period_asymmetry"]) < 0.005
+    assert abs(e["period_asymmetry"]) < 0.008
     assert 0.97 < e["amplitude_ratio"] < 1.03
     assert -0.01 < e["energy_change_per_period"] < 0.005
     assert s["energy"]["growth"] < 0.1
@@ -37,9 +39,9 @@ def test_isph_defaults_keep_the_wave_for_three_periods(tmp_path):
     s = wave(tmp_path, 5.0)
     assert s["status"] == "ok" and s["energy"]["guard"] == "on"
     e = s["errors"]
-    assert 0.0 < e["period_error"] < 0.015  # +1.00%: a spatial error (h = 1.3 dx), the same at cfl 0.1
-    assert abs(e["period_asymmetry"]) < 0.006  # 0.41%
-    assert 0.97 < e["amplitude_ratio"] < 1.07  # 1.045
+    assert 0.0 < e["period_error"] < 0.015  # +0.92%: a spatial error (h = 1.3 dx), the same at cfl 0.1
+    assert abs(e["period_asymmetry"]) < 0.008  # 0.52%
+    assert 0.97 < e["amplitude_ratio"] < 1.05  # 1.021 (1.045 with the Wendland elevation window)
     assert -0.01 < e["energy_change_per_period"] < 0.025  # +1.6%
     assert s["energy"]["growth"] < 0.25  # the crest-phase peak, +20%
 
