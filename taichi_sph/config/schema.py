@@ -226,7 +226,7 @@ class ISPH:
                                                          "(ISPH steps ~10x longer, so the same alpha damps differently)", minimum=0.0)
     cfl: float | None = opt(None, "Courant number of ISPH's adaptive step; None = time.cfl. ISPH's step follows the flow "
                                   "speed, WCSPH's the sound speed, so the same number means steps ~10x apart", positive=True)
-    hdx: float | None = opt(None, "h / dx for ISPH; None = particles.hdx. ISPH's summation density (its density-invariance "
+    hdx: float | None = opt(None, "h / dx for ISPH; None = particles.hdx, or 1.3 when that is unset. ISPH's summation density (its density-invariance "
                                   "source, its density error) spreads with the arrangement's disorder the more the smaller h is: "
                                   "WCSPH's continuity density does not see it", positive=True)
     shifting_coefficient: float | None = opt(None, "A of the particle shift in ISPH; None = shifting.coefficient (ISPH's corrected "
