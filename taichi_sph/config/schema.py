@@ -102,8 +102,11 @@ class Reflecting:
 
 @dataclass(frozen=True)
 class DensityDiffusion:
-    model: str = opt("none", "delta-SPH density diffusion: Molteni & Colagrossi 2009, or with the hydrostatic "
-                              "part removed (Fourtakas et al. 2019)", choices=("none", "molteni", "fourtakas"))
+    model: str = opt("none", "delta-SPH density diffusion: Molteni & Colagrossi 2009, with the hydrostatic part "
+                              "removed (Fourtakas et al. 2019), or with the linear part of every pair's difference removed "
+                              "through the renormalised density gradient (Antuono et al. 2010): zero on any linear density "
+                              "field, also where a free surface cuts the kernel", choices=("none", "molteni", "fourtakas",
+                                                                                           "antuono"))
     delta: float = opt(0.1, "diffusion coefficient delta", minimum=0.0)
 
 

@@ -2,6 +2,10 @@
 
 import taichi as ti
 
+# kernel-gradient correction only where the moment matrix sum_b V_b (x_b - x_a) (x) grad_a W_ab is well conditioned
+# (its determinant is about 1 on a lattice; a few splash particles have a near-singular one)
+MIN_MOMENT_DETERMINANT = 0.1
+
 
 @ti.func
 def continuity_rate(m_b: float, v_ab, grad_w) -> float:
@@ -35,6 +39,15 @@ def hydrostatic_density_difference(r_ab, gravity, rho0: float, b: float, gamma: 
     else:
         out = ti.pow(ti.max(1.0 - e, 1e-6), k) - 1.0
     return rho0 * out
+
+
+@ti.func
+def antuono_density_difference(rho_a: float, rho_b: float, grad_rho_a, grad_rho_b, r_ab) -> float:
+    """(rho_b - rho_a) - (<grad rho>_a + <grad rho>_b) . (x_b - x_a) / 2 (r_ab = x_a - x_b): half of Antuono et al.
+    (2010)'s psi_ba. The pair's density difference less its linear part, so that the diffusion vanishes on any linear
+    density field, a hydrostatic column included, also where the free surface cuts the kernel (<grad rho>: the
+    renormalised gradient, exact for a linear field there)."""
+    return rho_b - rho_a + 0.5 * (grad_rho_a + grad_rho_b).dot(r_ab)
 
 
 @ti.func

@@ -148,7 +148,7 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
         ints += cfg.shifting.model == "sun"  # its surface flags
         ints += f.tensile_instability_control  # the free-surface region kept for it
     if cfg.solver == "wcsph":
-        floats += (f.density == "continuity") + (f.density_diffusion != "none")
+        floats += (f.density == "continuity") + (f.density_diffusion != "none") + f.dim * (f.density_diffusion == "antuono")
         if f.walls and cfg.wcsph.wall_clearance is not None:
             floats += 2 * (d + 1)                           # wall planes (+ scratch)
             ints += 1                                       # near-wall flag

@@ -23,7 +23,7 @@ import taichi as ti
 
 from taichi_sph.config.schema import Config
 from taichi_sph.linalg.ppe import BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE
-from taichi_sph.physics.density import corrected_gradient_pair_terms, deformation_density
+from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradient_pair_terms, deformation_density
 from taichi_sph.physics.free_surface import SURFACE_CANDIDATE, in_surface_cone, projection_self_ratio
 from taichi_sph.physics.momentum import monaghan_viscosity, morris_laminar_viscosity
 from taichi_sph.physics.ppe_terms import (
@@ -40,8 +40,6 @@ from taichi_sph.solvers.shifting import ParticleShifting
 
 # source weight beta in s = (1 - beta) s_divergence + beta s_density, per `isph.source`
 SOURCE_WEIGHT = {"divergence": lambda blend: 0.0, "density_invariance": lambda blend: 1.0, "blend": lambda blend: blend}
-# kernel-gradient correction only where the moment matrix is well conditioned (about 1 on a lattice)
-MIN_MOMENT_DETERMINANT = 0.1
 
 
 def _lattice_offsets(cfg: Config) -> np.ndarray:

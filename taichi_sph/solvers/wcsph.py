@@ -18,7 +18,13 @@ import numpy as np
 import taichi as ti
 
 from taichi_sph.config.schema import AUTO, Config
-from taichi_sph.physics.density import continuity_rate, hydrostatic_density_difference, molteni_diffusion
+from taichi_sph.physics.density import (
+    MIN_MOMENT_DETERMINANT,
+    antuono_density_difference,
+    continuity_rate,
+    hydrostatic_density_difference,
+    molteni_diffusion,
+)
 from taichi_sph.physics.momentum import (
     difference_pressure_gradient,
     monaghan_tensile_correction,
@@ -47,6 +53,7 @@ class WCSPHSolver(SolverBase):
         # both are computed after the last neighbour rebuild and used before the next: not permuted
         self.drho = P.add_scalar() if f.density == "continuity" else None
         self.drho_diffusion = P.add_scalar() if f.density_diffusion != "none" else None
+        self.grad_rho = P.add_vector() if f.density_diffusion == "antuono" else None
         self.alpha, self.beta = cfg.artificial_viscosity
         self.delta_h_c0 = cfg.wcsph.density_diffusion.delta * self.h * self.c0
         tc = cfg.wcsph.tensile_correction
@@ -86,7 +93,42 @@ class WCSPHSolver(SolverBase):
             self.tait_pass(serial)
         if ti.static(self.features.walls):
             self.adami_wall_pass(serial)
+        if ti.static(self.features.density_diffusion == "antuono"):
+            self.density_gradient_pass(serial)
         self.wcsph_forces_pass(serial)
+
+    @ti.func
+    def density_gradient_pass(self, serial: ti.template()):
+        """<grad rho>_a = (M_a^T)^-1 sum_b V_b (rho_b - rho_a) grad_a W_ab, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab,
+        over fluid neighbours: the renormalised density gradient of Antuono et al. (2010)'s diffusion (sum / (tr M_a /
+        dim) where M_a is near singular: a splash particle's few neighbours)."""
+        P = self.particles
+        ti.loop_config(serialize=serial)
+        for a in range(self.n):
+            if self.live():
+                if P.kind[a] == FLUID:
+                    sums = ti.Struct(rho_a=P.rho[a], g=ti.Vector.zero(float, self.dim),
+                                     moment=ti.Matrix.zero(float, self.dim, self.dim))
+                    self.nsearch.for_each_neighbor(a, P.x, self.density_gradient_pair, sums)
+                    # M is I on a full support, I / 2 at a wall's row, I / 4 in a corner (fluid neighbours only):
+                    # inverted where it is well conditioned for its size, else its mean eigenvalue stands in
+                    moment, grad = sums.moment, ti.Vector.zero(float, self.dim)
+                    scale = moment.trace() / self.dim
+                    if scale > 1e-3:
+                        grad = sums.g / scale
+                        if ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT * scale ** self.dim:
+                            grad = moment.transpose().inverse() @ sums.g
+                    self.grad_rho[a] = grad
+
+    @ti.func
+    def density_gradient_pair(self, a, b, r_ab, sums: ti.template()):
+        """sums.g += V_b (rho_b - rho_a) grad_a W_ab and sums.moment += V_b (x_b - x_a) (x) grad_a W_ab, fluid b only."""
+        P = self.particles
+        if P.kind[b] == FLUID:
+            grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
+            vol_b = P.mass[b] / P.rho[b]
+            sums.g += vol_b * (P.rho[b] - sums.rho_a) * grad_w
+            sums.moment -= vol_b * r_ab.outer_product(grad_w)
 
     @ti.func
     def wcsph_forces_pass(self, serial: ti.template()):
@@ -134,7 +176,7 @@ class WCSPHSolver(SolverBase):
             self.tensile_correction_pair(b, m_b, rho_b, is_fluid_b, r, grad_w, sums)
         if ti.static(self.features.density_diffusion != "none"):
             if is_fluid_b:
-                self.diffusion_pair(r_ab, r2, m_b, rho_b, grad_w, sums)
+                self.diffusion_pair(a, b, r_ab, r2, m_b, rho_b, grad_w, sums)
         v_visc = v_ab
         if ti.static(self.features.no_slip and (self.features.laminar_viscosity or self.features.artificial_viscosity)):
             if not is_fluid_b:
@@ -169,11 +211,14 @@ class WCSPHSolver(SolverBase):
                                                 self.tc_epsilon, self.tc_epsilon_positive, self.tc_n, grad_w)
 
     @ti.func
-    def diffusion_pair(self, r_ab, r2, m_b, rho_b, grad_w, sums: ti.template()):
-        """delta-SPH density diffusion (Molteni & Colagrossi; fourtakas: minus the hydrostatic difference)."""
+    def diffusion_pair(self, a, b, r_ab, r2, m_b, rho_b, grad_w, sums: ti.template()):
+        """delta-SPH density diffusion (Molteni & Colagrossi; fourtakas: minus the hydrostatic difference; antuono:
+        minus the linear part through the renormalised gradients)."""
         drho_ab = rho_b - sums.rho_a
         if ti.static(self.features.density_diffusion == "fourtakas"):
             drho_ab -= hydrostatic_density_difference(r_ab, self.gravity[None], self.rho0, self.B, self.gamma)
+        if ti.static(self.features.density_diffusion == "antuono"):
+            drho_ab = antuono_density_difference(sums.rho_a, rho_b, self.grad_rho[a], self.grad_rho[b], r_ab)
         sums.drho += molteni_diffusion(sums.rho_a, sums.rho_a + drho_ab, m_b / rho_b, r_ab, r2, self.eta2,
                                        self.delta_h_c0, grad_w)
 

@@ -24,7 +24,7 @@ class Features:
     laminar_viscosity: bool
     artificial_viscosity: bool
     density: str                  # continuity | summation (WCSPH); ISPH always uses summation for its source
-    density_diffusion: str        # none | molteni | fourtakas
+    density_diffusion: str        # none | molteni | fourtakas | antuono
     tensile_correction: bool
     tensile_instability_control: bool  # Sun et al. 2017's difference form in tension (WCSPH)
     integrator: str
