@@ -51,6 +51,23 @@ def antuono_density_difference(rho_a: float, rho_b: float, grad_rho_a, grad_rho_
 
 
 @ti.func
+def renormalised_gradient(sum_df, moment):
+    """grad f_a = (M_a^T)^-1 sum_b V_b (f_b - f_a) grad_a W_ab, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab: exact for a
+    linear f on any support (Bonet & Lok 1999). M is I on a full support, I / 2 in a row a wall or a free surface cuts,
+    I / 4 in a corner: it is inverted where it is well conditioned for its size (det M > MIN_MOMENT_DETERMINANT
+    (tr M / dim)^dim), else its mean eigenvalue tr M / dim stands in (a splash particle's few neighbours; 0 with
+    none). A plain det M > 0.1 test gave a fluid-only corner no correction."""
+    dim = ti.static(moment.n)
+    scale = moment.trace() / dim
+    grad = ti.Vector.zero(float, dim)
+    if scale > 1e-3:
+        grad = sum_df / scale
+        if ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT * scale ** dim:
+            grad = moment.transpose().inverse() @ sum_df
+    return grad
+
+
+@ti.func
 def corrected_gradient_pair_terms(vol_b: float, u_ab, r_ab, grad_w):
     """One pair's shares of S = sum_b V_b (u_b - u_a) (x) grad_a W_ab and M = sum_b V_b (x_b - x_a) (x) grad_a W_ab
     (u_ab = u_a - u_b, r_ab = x_a - x_b). grad u_a = S M^-1 is exact for a linear field u at any support, a

@@ -19,11 +19,11 @@ import taichi as ti
 
 from taichi_sph.config.schema import AUTO, Config
 from taichi_sph.physics.density import (
-    MIN_MOMENT_DETERMINANT,
     antuono_density_difference,
     continuity_rate,
     hydrostatic_density_difference,
     molteni_diffusion,
+    renormalised_gradient,
 )
 from taichi_sph.physics.momentum import (
     difference_pressure_gradient,
@@ -100,8 +100,7 @@ class WCSPHSolver(SolverBase):
     @ti.func
     def density_gradient_pass(self, serial: ti.template()):
         """<grad rho>_a = (M_a^T)^-1 sum_b V_b (rho_b - rho_a) grad_a W_ab, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab,
-        over fluid neighbours: the renormalised density gradient of Antuono et al. (2010)'s diffusion (sum / (tr M_a /
-        dim) where M_a is near singular: a splash particle's few neighbours)."""
+        over fluid neighbours (physics/density.py renormalised_gradient): Antuono et al. (2010)'s diffusion."""
         P = self.particles
         ti.loop_config(serialize=serial)
         for a in range(self.n):
@@ -110,15 +109,7 @@ class WCSPHSolver(SolverBase):
                     sums = ti.Struct(rho_a=P.rho[a], g=ti.Vector.zero(float, self.dim),
                                      moment=ti.Matrix.zero(float, self.dim, self.dim))
                     self.nsearch.for_each_neighbor(a, P.x, self.density_gradient_pair, sums)
-                    # M is I on a full support, I / 2 at a wall's row, I / 4 in a corner (fluid neighbours only):
-                    # inverted where it is well conditioned for its size, else its mean eigenvalue stands in
-                    moment, grad = sums.moment, ti.Vector.zero(float, self.dim)
-                    scale = moment.trace() / self.dim
-                    if scale > 1e-3:
-                        grad = sums.g / scale
-                        if ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT * scale ** self.dim:
-                            grad = moment.transpose().inverse() @ sums.g
-                    self.grad_rho[a] = grad
+                    self.grad_rho[a] = renormalised_gradient(sums.g, sums.moment)
 
     @ti.func
     def density_gradient_pair(self, a, b, r_ab, sums: ti.template()):

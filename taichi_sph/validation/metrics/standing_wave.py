@@ -72,7 +72,7 @@ class StandingWaveMetric(MetricObserver):
             self.rest = rest_state(self.cfg, m)
         left = surface_elevation(x, m / rho, self.x_left, self.margin, floor=self.spec.floor)
         right = surface_elevation(x, m / rho, self.x_right, self.margin, floor=self.spec.floor)
-        if self.offset is None:  # the lattice's partition-of-unity error (0.1% of the depth) and the rest level:
+        if self.offset is None:  # the rest level (the surface row's volumes against dx^dim):
             self.offset = (left - self.theory(self.x_left, t), right - self.theory(self.x_right, t))
         left, right = left - self.offset[0], right - self.offset[1]
         energy = (kinetic_energy(v, m) + potential_energy(self.cfg, x, m)
