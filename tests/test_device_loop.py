@@ -106,7 +106,7 @@ def test_skipped_steps_leave_the_state_alone():
     s = fresh(column_cfg(), False)
     s.advance(3)
     t = s.t
-    s._launch(10, -math.inf, math.inf, False)  # step 0 always runs; steps 1-9 are past t_stop
+    s.launch_steps(10, -math.inf, math.inf, False)  # step 0 always runs; steps 1-9 are past t_stop
     assert s.step_count == 4 and s.t > t
     s2 = fresh(column_cfg(), False)
     s2.advance(4)

@@ -11,7 +11,8 @@ from taichi_sph.linalg.ppe import BB, DIRICHLET, UNKNOWN
 from taichi_sph.physics.free_surface import projection_self_ratio
 from taichi_sph.run.simulation import Simulation
 from taichi_sph.scene.bodies import build_particles
-from taichi_sph.solvers.isph import ISPHSolver, lattice_gradient_sum
+from taichi_sph.scene.lattice import lattice_gradient_sum
+from taichi_sph.solvers.isph import ISPHSolver
 from taichi_sph.sph.kernels import make_kernel
 
 

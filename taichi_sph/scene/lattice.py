@@ -60,6 +60,19 @@ def lattice_kernel_sum(cfg: Config, w) -> float:
     return float(np.sum(w(r)) * dx ** cfg.dim)
 
 
+def lattice_gradient_sum(cfg: Config, dw_dr, eta2: float = 0.0) -> float:
+    """(1/dim) sum_b V_b (-r dW/dr) r^2 / (r^2 + eta^2) over a full lattice (b != a).
+
+    With eta2 = 0: the SPH gradient (and divergence) of a linear field over the exact one,
+    sum_b V_b (x_b - x_a) (x) grad_a W_ab = this x identity. With eta2: the same ratio for the
+    Brookshaw / Shao & Lo Laplacian of a quadratic field.
+    """
+    dx = cfg.particles.dx
+    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h)
+    r = r[r > 0]
+    return float(np.sum(-r * dw_dr(r) * r * r / (r * r + eta2)) * dx ** cfg.dim / cfg.dim)
+
+
 def max_neighbors_for(cfg: Config, support_radius: float) -> int:
     """Neighbour-list capacity: the configured value, or 2.5x the lattice count within the support."""
     if cfg.particles.max_neighbors != AUTO:

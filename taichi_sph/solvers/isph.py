@@ -22,45 +22,29 @@ import numpy as np
 import taichi as ti
 
 from taichi_sph.config.schema import Config
-from taichi_sph.linalg.ppe import BB, DIRICHLET, N_DIRICHLET, N_UNKNOWN, NOT_IN_PPE, SUM_B, UNKNOWN, MatrixFreePPE
-from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradient_pair_terms, deformation_density
-from taichi_sph.physics.free_surface import SURFACE_CANDIDATE, in_surface_cone, projection_self_ratio
+from taichi_sph.linalg.ppe import BB, DIRICHLET, N_UNKNOWN, SUM_B, UNKNOWN, MatrixFreePPE
+from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT
 from taichi_sph.physics.momentum import monaghan_viscosity, morris_laminar_viscosity
 from taichi_sph.physics.ppe_terms import (
-    free_surface_pressure,
     neumann_wall_pressure_difference,
     ppe_source,
     shao_lo_laplacian_weight,
     velocity_divergence_term,
 )
 from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays
-from taichi_sph.scene.lattice import lattice_distances, lattice_kernel_sum
+from taichi_sph.scene.lattice import lattice_gradient_sum, lattice_kernel_sum
 from taichi_sph.solvers.base import SolverBase
+from taichi_sph.solvers.isph_continuity import ContinuityDensity
+from taichi_sph.solvers.isph_free_surface import FreeSurfaceDetection
+from taichi_sph.solvers.isph_report import ppe_summary
 from taichi_sph.solvers.shifting import ParticleShifting
 
 # source weight beta in s = (1 - beta) s_divergence + beta s_density, per `isph.source`
 SOURCE_WEIGHT = {"divergence": lambda blend: 0.0, "density_invariance": lambda blend: 1.0, "blend": lambda blend: blend}
 
 
-def _lattice_offsets(cfg: Config) -> np.ndarray:
-    """Distances |x_a - x_b| > 0 from one site of a full lattice of spacing dx to the others in reach."""
-    r = lattice_distances(cfg.dim, cfg.particles.dx, 3.0 * cfg.h)
-    return r[r > 0]
-
-
-def lattice_gradient_sum(cfg: Config, dw_dr, eta2: float = 0.0) -> float:
-    """(1/dim) sum_b V_b (-r dW/dr) r^2 / (r^2 + eta^2) over a full lattice.
-
-    With eta2 = 0: the SPH gradient (and divergence) of a linear field over the exact one,
-    sum_b V_b (x_b - x_a) (x) grad_a W_ab = this x identity. With eta2: the same ratio for the
-    Brookshaw / Shao & Lo Laplacian of a quadratic field.
-    """
-    r = _lattice_offsets(cfg)
-    return float(np.sum(-r * dw_dr(r) * r * r / (r * r + eta2)) * cfg.particles.dx ** cfg.dim / cfg.dim)
-
-
 @ti.data_oriented
-class ISPHSolver(SolverBase):
+class ISPHSolver(FreeSurfaceDetection, SolverBase):
     """Projection ISPH: Shao & Lo Laplacian, matrix-free Jacobi / PCG, free-surface Dirichlet, Neumann walls."""
 
     name = "isph"
@@ -94,10 +78,7 @@ class ISPHSolver(SolverBase):
         self.grad_p_estimate = P.add_vector()  # rho0 (g - a) of the last step: grad p near the surface
         # isph.density: continuity: each particle's density, carried by the divergence of its motion and shift
         self.continuity = ic.density == "continuity"
-        self.rho_continuity = P.add_scalar(persistent=True) if self.continuity else None
-        if self.continuity:
-            self.rho_continuity.fill(self.rho0)
-            self.displacement = P.add_vector()  # the motion whose divergence changes rho_continuity
+        self.continuity_density = ContinuityDensity(self) if self.continuity else None
         self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
                                  ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid,
                                  ic.ppe.check_every)
@@ -109,97 +90,6 @@ class ISPHSolver(SolverBase):
         # largest predictor acceleration |g + viscous| of the last step: the force limit of `isph.step_force: explicit`
         self.explicit_step_force = ic.step_force == "explicit"
         self.explicit_acc = ti.field(float, shape=())
-
-
-    # -- 1. density and free surface ------------------------------------------------------
-    @ti.kernel
-    def detect_free_surface(self):
-        """Summation density, free-surface role and Dirichlet pressure (see the module doc)."""
-        P = self.particles
-        E = self.ppe
-        E.scalars[N_DIRICHLET] = 0.0
-        for a in range(self.n):
-            role = NOT_IN_PPE
-            if P.kind[a] == FLUID:
-                xa = P.x[a]
-                sums = ti.Struct(rho=P.mass[a] * self.kernel.w0, grad_c=ti.Vector.zero(float, self.dim),
-                                 moment=ti.Matrix.zero(float, self.dim, self.dim),
-                                 grad_w_moment=ti.Matrix.zero(float, self.dim, self.dim),
-                                 acc_sum=P.mass[a] * self.kernel.w0 * P.acc[a], w_fluid=P.mass[a] * self.kernel.w0)
-                self.nsearch.for_each_neighbor(a, P.x, self.free_surface_pair, sums)
-                rho, grad_c, moment, grad_w_moment = sums.rho, sums.grad_c, sums.moment, sums.grad_w_moment
-                acc_sum, w_fluid = sums.acc_sum, sums.w_fluid
-                # last step's acceleration, Shepard-averaged over the fluid neighbours: one particle's
-                # spike (a contact line, a near-singular gradient) must not become its own Dirichlet
-                # pressure, which spikes its next acceleration
-                acc = acc_sum / w_fluid
-                rho /= self.lattice_sum
-                self.rho_summation[a] = rho
-                surface = rho < self.surface_threshold * self.rho0
-                if not surface and rho < SURFACE_CANDIDATE * self.rho0:
-                    cone = ti.Struct(outward=-grad_c.normalized(1e-12), surface=True)
-                    self.nsearch.for_each_neighbor(a, P.x, self.surface_cone_pair, cone)
-                    surface = cone.surface
-                    if ti.static(self.one_sided):
-                        if not surface and ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT:
-                            surface = projection_self_ratio(grad_c, moment, grad_w_moment,
-                                                            P.mass[a] / self.rho0) > self.one_sided_ratio
-                self.grad_p_estimate[a] = self.rho0 * (self.body_force(xa) - acc)
-                role = UNKNOWN
-                if surface:
-                    role = DIRICHLET
-                    P.p[a] = self.p_background + free_surface_pressure(self.rho0, self.surface_depth, grad_c,
-                                                                       self.body_force(xa), acc)
-                    ti.atomic_add(E.scalars[N_DIRICHLET], 1.0)
-                if rho < SURFACE_CANDIDATE * self.rho0:  # (physics/free_surface.py) below it: floored at rho0
-                    rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
-                P.rho[a] = rho
-            E.role[a] = role
-
-    @ti.func
-    def free_surface_pair(self, a, b, r_ab, sums: ti.template()):
-        """Pair (a, b)'s share of the summation density, grad C, the moments of the self ratio and the
-        Shepard average of last step's fluid acceleration."""
-        P = self.particles
-        r = r_ab.norm()
-        w = self.kernel.w(r)
-        sums.rho += P.mass[b] * w
-        grad_w = self.kernel.grad_w(r_ab, r)
-        sums.grad_c += P.mass[b] / self.rho0 * grad_w
-        if ti.static(self.one_sided):
-            sums.moment -= P.mass[b] / self.rho0 * r_ab.outer_product(grad_w)
-            sums.grad_w_moment += P.mass[b] / self.rho0 * grad_w.outer_product(grad_w)
-        if P.kind[b] == FLUID:
-            sums.acc_sum += P.mass[b] * w * P.acc[b]
-            sums.w_fluid += P.mass[b] * w
-
-    @ti.func
-    def surface_cone_pair(self, a, b, r_ab, cone: ti.template()):
-        """A fluid neighbour in the scan cone around a's outward normal: a is not at the free surface."""
-        r_ba = -r_ab
-        dist = r_ba.norm()
-        if self.particles.kind[b] == FLUID and in_surface_cone(r_ba, dist, cone.outward, self.support):
-            cone.surface = False
-
-    @ti.kernel
-    def floor_surface_band_density(self):
-        """rho_a = max(rho_a, rho0) at the fluid particles with a free-surface (Dirichlet) neighbour: the floor the
-        PPE assembly applies every step (a support the free surface cuts off is not expansion), here for the state
-        before the first step, so that the density written at t = 0 follows the rule of every later output."""
-        P = self.particles
-        E = self.ppe
-        for a in range(self.n):
-            if P.kind[a] == FLUID and E.role[a] == UNKNOWN:
-                band = ti.Struct(near_surface=False)
-                self.nsearch.for_each_neighbor(a, P.x, self.surface_neighbor_pair, band)
-                if band.near_surface:
-                    P.rho[a] = ti.max(P.rho[a], self.rho0)
-
-    @ti.func
-    def surface_neighbor_pair(self, a, b, r_ab, band: ti.template()):
-        """band.near_surface: b is a free-surface (Dirichlet) fluid particle."""
-        if self.particles.kind[b] == FLUID and self.ppe.role[b] == DIRICHLET:
-            band.near_surface = True
 
     # -- 2. predictor -----------------------------------------------------------------------
     @ti.kernel
@@ -265,7 +155,7 @@ class ISPHSolver(SolverBase):
                 div_v = row.div_v * self.grad_norm
                 rho = self.rho_summation[a]
                 if ti.static(self.continuity):
-                    rho = self.rho_continuity[a]
+                    rho = self.continuity_density.rho[a]
                 if near_surface:
                     # sum over the cut-off support of K (p_a - p_m), p continued linearly with gradient
                     # rho0 (g - a): rho0 (g - a) . sum_missing K r_am = -rho0 (g - a) . sum_present K r_ab
@@ -363,9 +253,7 @@ class ISPHSolver(SolverBase):
                         ti.atomic_add(self.wall_cuts[None], 1)
                 P.v[a] = v
         if ti.static(self.continuity):
-            for a in range(self.n):
-                self.displacement[a] = dt * P.v[a] if P.kind[a] == FLUID else ti.Vector.zero(float, self.dim)
-            self.continuity_pass()
+            self.continuity_density.deform_by_motion(dt)
         for a in range(self.n):
             if P.kind[a] == FLUID:
                 P.x[a] += dt * P.v[a]
@@ -381,43 +269,6 @@ class ISPHSolver(SolverBase):
             vol_b = P.mass[b] / self.rho0
             sums.sum_dp += vol_b * (P.p[b] - sums.p_a) * grad_w
             sums.moment -= vol_b * r_ab.outer_product(grad_w)
-
-    # -- continuity density ------------------------------------------------------------------------
-    @ti.func
-    def continuity_pass(self):
-        """rho_c,a /= det(I + grad u_a) for the displacement u (this step's dt v, or the shift) at the positions
-        before it: the corrected gradient over fluid and wall neighbours (walls do not move), the lattice-normalised
-        one where the moment matrix is near singular."""
-        P = self.particles
-        for a in range(self.n):
-            if P.kind[a] == FLUID:
-                sums = ti.Struct(u_a=self.displacement[a], s=ti.Matrix.zero(float, self.dim, self.dim),
-                                 moment=ti.Matrix.zero(float, self.dim, self.dim))
-                self.nsearch.for_each_neighbor(a, P.x, self.continuity_pair, sums)
-                grad_u = sums.s * self.grad_norm
-                if ti.abs(sums.moment.determinant()) > MIN_MOMENT_DETERMINANT:
-                    grad_u = sums.s @ sums.moment.inverse()
-                self.rho_continuity[a] = deformation_density(self.rho_continuity[a], grad_u)
-
-    @ti.func
-    def continuity_pair(self, a, b, r_ab, sums: ti.template()):
-        """Pair (a, b)'s share of sum_b V_b (u_b - u_a) (x) grad W and of the moment matrix."""
-        P = self.particles
-        grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
-        u_b = ti.Vector.zero(float, self.dim)
-        if P.kind[b] == FLUID:
-            u_b = self.displacement[b]
-        s_ab, m_ab = corrected_gradient_pair_terms(P.mass[b] / self.rho0, sums.u_a - u_b, r_ab, grad_w)
-        sums.s += s_ab
-        sums.moment += m_ab
-
-    @ti.kernel
-    def shift_continuity(self):
-        """rho_c after the particle shift (computed, not yet applied): its divergence changes the volumes."""
-        P = self.particles
-        for a in range(self.n):
-            self.displacement[a] = self.shifting.shift[a] if P.kind[a] == FLUID else ti.Vector.zero(float, self.dim)
-        self.continuity_pass()
 
     # -- one step -------------------------------------------------------------------------------------
     def prepare(self) -> None:
@@ -459,41 +310,16 @@ class ISPHSolver(SolverBase):
         if self.shifting is not None:
             self.shifting.compute(dt, s["max_speed"])
             if self.continuity:
-                self.shift_continuity()
+                self.continuity_density.deform_by_shift()
             self.shifting.move()
         self.t += dt
         self.step_count += 1
         return dt
 
     # -- reporting ------------------------------------------------------------------------------------
-    def nonconverged_steps(self) -> list[int]:
-        """Indices of the steps that stopped at max_iterations above the tolerance."""
-        return [i for i, (n, r) in enumerate(zip(self.iterations, self.residuals))
-                if n >= self.ppe.max_iterations and r > self.ppe.tolerance]
-
     def extra_summary(self) -> dict:
-        """`ppe` (iterations, residuals, settings) and `ppe_warnings` (steps that hit max_iterations)."""
-        its = np.asarray(self.iterations, dtype=float)
-        bad = self.nonconverged_steps()
-        ppe = {"solver": self.ppe.solver,
-               "iterations_mean": float(its.mean()) if its.size else 0.0,
-               "iterations_max": int(its.max()) if its.size else 0,
-               "residual_max": float(max(self.residuals)) if self.residuals else 0.0,
-               "nonconverged_steps": len(bad),
-               "tolerance": self.ppe.tolerance, "max_iterations": self.ppe.max_iterations,
-               "source": self.source if self.source != "blend" else f"blend({self.beta:g})",
-               "pure_neumann_steps": self.pure_neumann_steps,
-               "multigrid_levels": self.ppe.mg.describe() if self.ppe.mg else None,
-               "loop_schedule": {None: "undecided", True: "serial", False: "parallel"}[self.ppe.serial],
-               "walls": "Neumann (pairwise hydrostatic) in the PPE, Adami pressure >= p_b in the gradient",
-               "pressure_gradient": "kernel-gradient-corrected difference form"}
-        warnings = []
-        if bad:
-            worst = max(self.residuals[i] for i in bad)
-            warnings.append(f"PPE ({self.ppe.solver}) stopped at max_iterations = {self.ppe.max_iterations} above the "
-                            f"tolerance {self.ppe.tolerance:g} in {len(bad)} of {len(self.iterations)} steps (first at "
-                            f"step {bad[0] + 1}, relative residual up to {worst:.3g})")
-        return {"ppe": ppe, "ppe_warnings": warnings, **self.kinematic_walls_summary()}
+        """`ppe` (iterations, residuals, settings), `ppe_warnings` and the kinematic wall condition's count."""
+        return {**ppe_summary(self), **self.kinematic_walls_summary()}
 
     def extra_timeseries(self) -> dict:
         """Iterations and relative residual of the last PPE solve."""

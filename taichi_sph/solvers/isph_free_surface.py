@@ -1,0 +1,107 @@
+"""ISPH's first pass of a step: the summation density, which fluid particles are at the free surface (kernel sum,
+cone scan, one-sided ratio: physics/free_surface.py) and their Dirichlet pressure (physics/ppe_terms.py
+free_surface_pressure), with the estimate of grad p = rho0 (g - a) that the rows near the surface continue the
+pressure with. A mixin of ISPHSolver: its methods read the solver's fields and settings.
+"""
+
+import taichi as ti
+
+from taichi_sph.linalg.ppe import DIRICHLET, N_DIRICHLET, NOT_IN_PPE, UNKNOWN
+from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT
+from taichi_sph.physics.free_surface import SURFACE_CANDIDATE, in_surface_cone, projection_self_ratio
+from taichi_sph.physics.ppe_terms import free_surface_pressure
+from taichi_sph.scene.bodies import FLUID
+
+
+@ti.data_oriented
+class FreeSurfaceDetection:
+    """detect_free_surface (each step) and floor_surface_band_density (the initial state's density)."""
+
+    @ti.kernel
+    def detect_free_surface(self):
+        """Summation density, free-surface role and Dirichlet pressure (see the module doc)."""
+        P = self.particles
+        E = self.ppe
+        E.scalars[N_DIRICHLET] = 0.0
+        for a in range(self.n):
+            role = NOT_IN_PPE
+            if P.kind[a] == FLUID:
+                xa = P.x[a]
+                sums = ti.Struct(rho=P.mass[a] * self.kernel.w0, grad_c=ti.Vector.zero(float, self.dim),
+                                 moment=ti.Matrix.zero(float, self.dim, self.dim),
+                                 grad_w_moment=ti.Matrix.zero(float, self.dim, self.dim),
+                                 acc_sum=P.mass[a] * self.kernel.w0 * P.acc[a], w_fluid=P.mass[a] * self.kernel.w0)
+                self.nsearch.for_each_neighbor(a, P.x, self.free_surface_pair, sums)
+                rho, grad_c, moment, grad_w_moment = sums.rho, sums.grad_c, sums.moment, sums.grad_w_moment
+                acc_sum, w_fluid = sums.acc_sum, sums.w_fluid
+                # last step's acceleration, Shepard-averaged over the fluid neighbours: one particle's
+                # spike (a contact line, a near-singular gradient) must not become its own Dirichlet
+                # pressure, which spikes its next acceleration
+                acc = acc_sum / w_fluid
+                rho /= self.lattice_sum
+                self.rho_summation[a] = rho
+                surface = rho < self.surface_threshold * self.rho0
+                if not surface and rho < SURFACE_CANDIDATE * self.rho0:
+                    cone = ti.Struct(outward=-grad_c.normalized(1e-12), surface=True)
+                    self.nsearch.for_each_neighbor(a, P.x, self.surface_cone_pair, cone)
+                    surface = cone.surface
+                    if ti.static(self.one_sided):
+                        if not surface and ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT:
+                            surface = projection_self_ratio(grad_c, moment, grad_w_moment,
+                                                            P.mass[a] / self.rho0) > self.one_sided_ratio
+                self.grad_p_estimate[a] = self.rho0 * (self.body_force(xa) - acc)
+                role = UNKNOWN
+                if surface:
+                    role = DIRICHLET
+                    P.p[a] = self.p_background + free_surface_pressure(self.rho0, self.surface_depth, grad_c,
+                                                                       self.body_force(xa), acc)
+                    ti.atomic_add(E.scalars[N_DIRICHLET], 1.0)
+                if rho < SURFACE_CANDIDATE * self.rho0:  # (physics/free_surface.py) below it: floored at rho0
+                    rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
+                P.rho[a] = rho
+            E.role[a] = role
+
+    @ti.func
+    def free_surface_pair(self, a, b, r_ab, sums: ti.template()):
+        """Pair (a, b)'s share of the summation density, grad C, the moments of the self ratio and the
+        Shepard average of last step's fluid acceleration."""
+        P = self.particles
+        r = r_ab.norm()
+        w = self.kernel.w(r)
+        sums.rho += P.mass[b] * w
+        grad_w = self.kernel.grad_w(r_ab, r)
+        sums.grad_c += P.mass[b] / self.rho0 * grad_w
+        if ti.static(self.one_sided):
+            sums.moment -= P.mass[b] / self.rho0 * r_ab.outer_product(grad_w)
+            sums.grad_w_moment += P.mass[b] / self.rho0 * grad_w.outer_product(grad_w)
+        if P.kind[b] == FLUID:
+            sums.acc_sum += P.mass[b] * w * P.acc[b]
+            sums.w_fluid += P.mass[b] * w
+
+    @ti.func
+    def surface_cone_pair(self, a, b, r_ab, cone: ti.template()):
+        """A fluid neighbour in the scan cone around a's outward normal: a is not at the free surface."""
+        r_ba = -r_ab
+        dist = r_ba.norm()
+        if self.particles.kind[b] == FLUID and in_surface_cone(r_ba, dist, cone.outward, self.support):
+            cone.surface = False
+
+    @ti.kernel
+    def floor_surface_band_density(self):
+        """rho_a = max(rho_a, rho0) at the fluid particles with a free-surface (Dirichlet) neighbour: the floor the
+        PPE assembly applies every step (a support the free surface cuts off is not expansion), here for the state
+        before the first step, so that the density written at t = 0 follows the rule of every later output."""
+        P = self.particles
+        E = self.ppe
+        for a in range(self.n):
+            if P.kind[a] == FLUID and E.role[a] == UNKNOWN:
+                band = ti.Struct(near_surface=False)
+                self.nsearch.for_each_neighbor(a, P.x, self.surface_neighbor_pair, band)
+                if band.near_surface:
+                    P.rho[a] = ti.max(P.rho[a], self.rho0)
+
+    @ti.func
+    def surface_neighbor_pair(self, a, b, r_ab, band: ti.template()):
+        """band.near_surface: b is a free-surface (Dirichlet) fluid particle."""
+        if self.particles.kind[b] == FLUID and self.ppe.role[b] == DIRICHLET:
+            band.near_surface = True
