@@ -173,11 +173,44 @@ def test_real_measurement_and_choice_on_a_tiny_scene(tmp_path, monkeypatch):
     choice = realtime_measure.choose(cfg, ["wcsph"], view=False, log=logged.append)
     assert choice.measured and "measuring wcsph" in logged[0]
     entry = json.loads((tmp_path / "realtime.json").read_text())
-    (sample,) = next(iter(entry.values()))["samples"]
-    assert sample["n"] > 0 and sample["step_s"] > 0 and sample["dx"] == candidate_spacings(cfg)[0]
+    samples = next(iter(entry.values()))["samples"]
+    first = samples[0]
+    assert first["n"] > 0 and first["step_s"] > 0 and first["dx"] == candidate_spacings(cfg)[0]
+    checks = [line for line in logged if line.startswith("realtime: checking wcsph")]
+    assert len(samples) == 1 + len(checks) and len(checks) <= realtime_measure.MAX_CHECKS
+    if len(checks) < realtime_measure.MAX_CHECKS:  # the pick stands on a sample at its own particle count
+        assert choice.pick.cand.n in {s["n"] for s in samples}
     assert choice.line.startswith(f"dx {choice.pick.cand.dx:g}: ") and "wcsph, predicted RTF" in choice.line
     assert choice.cfg.particles.dx == choice.pick.cand.dx
     if choice.prepared is not None:
         assert choice.prepared[0].t == 0.0 and choice.prepared[0].step_count == 0
+        assert choice.prepared[0].n == choice.pick.cand.n
+    n_logged = len(logged)
     again = realtime_measure.choose(cfg, ["wcsph"], view=False, log=logged.append)
-    assert not again.measured and len(logged) == 2 and again.pick == choice.pick
+    if choice.pick.cand.n in {s["n"] for s in samples}:  # confirmed: the cache answers, nothing is measured
+        assert not again.measured and len(logged) == n_logged and again.pick.cand == choice.pick.cand
+
+
+def test_a_pick_the_model_got_wrong_is_measured_and_moved(tmp_path, monkeypatch):
+    """The model extrapolates from the coarsest dx; a machine whose cost grows faster than the particle count
+    (here 4x per doubling) makes the first pick too fine: measuring it moves the pick coarser, and the pick
+    that is kept is one a measurement confirms."""
+    monkeypatch.setenv(realtime_measure.CACHE_ENV, str(tmp_path))
+    cfg = load_config(DAM, ["realtime.min_particles_across=8"])
+    cands = realtime_measure.candidates(cfg, "wcsph")
+    n0 = cands[0].n
+    true_rtf = {c.n: 3.0 * (n0 / c.n) ** 2 for c in cands}  # RTF 3 at the coarsest
+
+    def fake_measure(c):
+        cand = next(x for x in cands if math.isclose(x.dx, c.particles.dx))
+        return Sample(cand.n, cand.dx, 1.0 / (cand.steps_per_s * true_rtf[cand.n])), object(), None
+
+    monkeypatch.setattr(realtime_measure, "measure", fake_measure)
+    logged: list[str] = []
+    choice = realtime_measure.choose(cfg, ["wcsph"], view=False, log=logged.append)
+    checks = [line for line in logged if "checking" in line]
+    assert checks, logged  # the proportional model picked finer than the truth allows
+    best_true = min((c for c in cands if true_rtf[c.n] >= cfg.realtime.margin), key=lambda c: c.dx)
+    assert choice.pick.cand.dx >= best_true.dx - 1e-12  # never finer than the machine can run
+    assert true_rtf[choice.pick.cand.n] >= cfg.realtime.margin or len(checks) == realtime_measure.MAX_CHECKS
+    assert choice.pick.rtf == pytest.approx(true_rtf[choice.pick.cand.n]) or len(checks) == realtime_measure.MAX_CHECKS

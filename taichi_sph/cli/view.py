@@ -21,6 +21,7 @@ import numpy as np
 from taichi_sph.cli.view_display import display_problem, no_display_error
 from taichi_sph.cli.view_pacing import (
     FRAME_BUDGET_S,
+    WARMUP_FRAMES,
     FrameWriter,
     Rate,
     WallClock,
@@ -58,7 +59,6 @@ class Viewer:
         self.cfg, self.frames, self.quiet, self.realtime = cfg, frames, quiet, realtime
         self.clock = WallClock()
         self.behind = False
-        self.dt_guess = 0.0
         self.record_dir = Path(record_dir) if record_dir is not None else None
         self.config_arg = config_arg
         self.settings = RenderSettings.from_config(cfg.render)
@@ -71,6 +71,7 @@ class Viewer:
         self.draw_s = 0.0  # drawing time of the last frame
         self.record_s = 0.0  # time writing the last frame to the run folder (--record)
         self.rate = Rate()
+        self.unclocked_frames = 0  # --realtime: frames drawn before the wall clock started
         self._single = self._reset = False  # asked for by a key or button, done in the next frame
         self._drag_from = None
 
@@ -99,14 +100,9 @@ class Viewer:
         else:
             self.solver = self._new_solver()
             self.initial = SolverMemento(self.solver)  # reset rewinds to it: no second solver to compile
-        if self.realtime is not None:
-            from taichi_sph.run.realtime import steps_per_simulated_second
-
-            if self.realtime.prepared is None:  # compile the step now, not in the first paced frame
-                self.solver.advance(1, float("inf"), self.cfg.time.t_end)
-                self.initial.restore()
-
-            self.dt_guess = 1.0 / steps_per_simulated_second(self.cfg)
+        if self.realtime is not None and self.realtime.prepared is None:  # compile the step now, not in a paced frame
+            self.solver.advance(1, float("inf"), self.cfg.time.t_end)
+            self.initial.restore()
         self.layout = FrameLayout.for_size(self.settings.width, self.settings.height)
         self.window = scene.open_window(f"taichi-sph view: {self.cfg.name} ({self.cfg.solver})",
                                         self.layout.width, self.layout.height, show=True)
@@ -126,8 +122,9 @@ class Viewer:
         if self.realtime is not None and not single:
             steps, budget = 0, max(budget, self.draw_s + self.record_s)  # stepping at least as long as drawing
             if self.clock.started:
-                steps, caught_up, self.dt_guess = step_until(solver, t_end, self.clock.target(solver.t), budget,
-                                                             self.dt_guess)
+                # the next step's own dt (ISPH's first step at rest is gravity-bound, 3x the developed dt): a
+                # step starts only if it ends within the wall clock
+                steps, caught_up, _ = step_until(solver, t_end, self.clock.target(solver.t), budget, solver.next_dt())
                 self.behind = not caught_up
                 self.ahead_s = max(self.ahead_s, solver.t - self.clock.allowed())
         else:
@@ -351,10 +348,13 @@ class Viewer:
             self._pace()
 
     def _pace(self) -> None:
-        """--realtime: start the wall clock after the first frame (compiling shaders), log the frame, and
-        sleep out the rest of the frame when the simulation has caught up with the wall."""
+        """--realtime: start the wall clock after WARMUP_FRAMES frames (GGUI compiling its pipelines), log the
+        frame, and sleep out the rest of the frame when the simulation has caught up with the wall."""
         s = self.solver
         if not self.clock.started:
+            self.unclocked_frames += 1
+            if self.unclocked_frames < WARMUP_FRAMES:
+                return
             self.clock.start(s.t)
             self.steps_at_start, self.ppe_at_start = s.step_count, getattr(s, "ppe_seconds", 0.0)
             self.iterations_at_start = len(getattr(s, "iterations", []))

@@ -40,6 +40,7 @@ from taichi_sph.run.realtime import (
 CACHE_ENV = "TAICHI_SPH_CACHE"
 FIRST_DRAW_S = 0.015  # a frame's drawing time until the live window has measured one on this machine [s]
 MAX_SAMPLES = 4
+MAX_CHECKS = 2  # measurements of a pick no sample confirms, per solver and launch (each compiles its particle count)
 
 
 def cache_path() -> Path:
@@ -164,27 +165,46 @@ class Choice:
 
 
 def choose(cfg: Config, solvers: list[str], *, view: bool, log=print) -> Choice:
-    """Measure (or read the cache), predict every candidate, pick dx per solver and the solver."""
-    picks, shares, measured = [], {}, {}
+    """Measure (or read the cache), predict every candidate, pick dx per solver and the solver. A pick at a
+    particle count no sample has is measured before it is trusted (the window compiles it anyway: the measured
+    solver is the one it runs); if the prediction was wrong, the pick moves, up to MAX_CHECKS measurements."""
+    picks, shares, measured, last = [], {}, {}, None
     for solver in solvers:
         entry = load_entry(cfg, solver)
         cands = candidates(cfg, solver)
-        samples = entry["samples"]
-        if not samples:
-            c = at_dx(cfg, cands[0].dx, solver)
-            log(f"realtime: measuring {solver} at dx {cands[0].dx:g} ({cands[0].n} particles; compiling first) ...")
-            sample, obj, memento = measure(c)
-            store(cfg, solver, sample)
-            samples, measured[solver] = [sample], (cands[0].dx, obj, memento)
-            log(f"realtime: {solver}: {1e3 * sample.step_s:.2f} ms a step, {sample.particle_steps_per_s / 1e6:.3g} M "
-                f"particle-steps/s" + (f", {sample.iterations:.1f} PPE iterations a step" if sample.iterations else ""))
+        samples = list(entry["samples"])
         shares[solver] = stepping_share(entry["draw_s"] or FIRST_DRAW_S) if view else 1.0
-        picks.append(pick_dx(solver, samples, cands, cfg.realtime.margin, shares[solver]))
+        if not samples:
+            log(f"realtime: measuring {solver} at dx {cands[0].dx:g} ({cands[0].n} particles; compiling first) ...")
+            samples = _measure_into(cfg, solver, cands[0], samples, measured, log)
+            last = solver
+        pick = pick_dx(solver, samples, cands, cfg.realtime.margin, shares[solver])
+        for _ in range(MAX_CHECKS):
+            if any(s.n == pick.cand.n for s in samples):
+                break
+            log(f"realtime: checking {solver} at dx {pick.cand.dx:g} ({pick.cand.n} particles, predicted RTF "
+                f"{pick.rtf:.2g}) ...")
+            samples = _measure_into(cfg, solver, pick.cand, samples, measured, log)
+            last = solver
+            pick = pick_dx(solver, samples, cands, cfg.realtime.margin, shares[solver])
+        picks.append(pick)
     best = pick_solver(picks) if len(picks) > 1 else picks[0]
     prepared = None
     m = measured.get(best.solver)
-    if m is not None and m[0] == best.cand.dx:
+    if m is not None and m[0] == best.cand.dx and best.solver == last:  # (a later measurement resets Taichi)
         prepared = (m[1], m[2])
     line = describe(best, device_label(cfg.arch), shares[best.solver])
     return Choice(best, at_dx(cfg, best.cand.dx, best.solver), line, shares[best.solver], prepared,
                   best.solver in measured)
+
+
+def _measure_into(cfg: Config, solver: str, cand: Candidate, samples: list[Sample], measured: dict, log) -> list[Sample]:
+    """Measure `solver` at `cand`, cache the sample and return `samples` with it (replacing one at its count);
+    `measured[solver]` = (dx, the measured solver, its memento)."""
+    sample, obj, memento = measure(at_dx(cfg, cand.dx, solver))
+    store(cfg, solver, sample)
+    measured[solver] = (cand.dx, obj, memento)
+    log(f"realtime: {solver}: {1e3 * sample.step_s:.2f} ms a step at {sample.n} particles, "
+        f"{sample.particle_steps_per_s / 1e6:.3g} M particle-steps/s"
+        + (f", {sample.iterations:.1f} PPE iterations a step" if sample.iterations else ""))
+    return [s for s in samples if s.n != sample.n] + [sample]

@@ -321,6 +321,17 @@ class SolverBase(KinematicWalls, CheckpointState):
         self.last_dt_limit = min(limits, key=limits.get)
         return min(float(limits[self.last_dt_limit]), self.dt_cap)
 
+    def free_dt(self, stats: dict) -> float:
+        """The next step's dt from the stats, before the run loop's cap (choose_dt with the sound speed c0)."""
+        cap, self.dt_cap = self.dt_cap, math.inf
+        dt = self.choose_dt(stats["max_speed"], stats["max_acc"], self.c0)
+        self.dt_cap = cap
+        return dt
+
+    def next_dt(self) -> float:
+        """The dt the next step will take (uncapped), from the current state: for a caller that paces steps."""
+        return self.free_dt(self.read_stats())
+
     # -- interface ----------------------------------------------------------------------------
     def prepare(self) -> None:
         raise NotImplementedError

@@ -278,19 +278,22 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
         if self.features.walls:
             self.wall_pressure()
 
+    def free_dt(self, stats: dict) -> float:
+        """The next step's dt before the run loop's cap: the CFL limit on max(|v|max, the moving walls' speed) and
+        the force limit on max(|a|max, |g|) (at rest |a| ~ 0 and |v| ~ 0: gravity still bounds the step,
+        sqrt(h / g)); with `isph.step_force: explicit` |a|max is the last predictor's (0 before the first step)."""
+        max_acc = self.explicit_acc[None] if self.explicit_step_force else stats["max_acc"]
+        cap, self.dt_cap = self.dt_cap, math.inf
+        dt = self.choose_dt(max(stats["max_speed"], self.wall_speed), max(max_acc, self.g_norm), 0.0)
+        self.dt_cap = cap
+        return dt
+
     def step(self) -> float:
         """Advance one step; returns the dt used."""
         self.update_body_force()
         s = self.read_stats()
-        # at rest |a| ~ 0 and |v| ~ 0: gravity still bounds the step (sqrt(h / g)); dt_free is the step
-        # before the run loop shortens it to land on t_end
-        cap, self.dt_cap = self.dt_cap, math.inf
-        max_acc = s["max_acc"]
-        if self.explicit_step_force:
-            max_acc = self.explicit_acc[None]  # the last predictor's (0 before the first step: gravity bounds it)
-        dt_free = self.choose_dt(max(s["max_speed"], self.wall_speed), max(max_acc, self.g_norm), 0.0)
-        self.dt_cap = cap
-        dt = min(dt_free, cap)
+        dt_free = self.free_dt(s)  # the step before the run loop shortens it to land on t_end
+        dt = min(dt_free, self.dt_cap)
         if self.step_count > 0:
             self.rebuild_neighbors()
             self.detect_free_surface()
