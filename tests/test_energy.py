@@ -57,6 +57,18 @@ def test_the_standing_wave_starts_with_linear_theory_s_energy():
     assert standing_wave_omega(2.0, 1.0, 9.81) == pytest.approx(3.7593, rel=1e-4)
 
 
+def test_a_periodic_channel_rests_on_its_wall_block_bed():
+    """No wall_box: the floor is the top of the wall_block under the fluid, not the domain's lower face (0.15 m
+    lower here: the rest state sat M g 0.15 m = 5.9 kJ too low, and the energy guard's bound with it)."""
+    cfg = load_config(CONFIGS / "standing_wave_2d.yaml", [
+        "solver=isph", "domain.lo=[0.0, -0.15]", "domain.hi=[4.0, 1.45]", "domain.periodic=[true, false]",
+        "bodies=[{type: fluid_block, lo: [0.0, 0.0], hi: [4.0, 1.0]}, {type: wall_block, lo: [0.0, -0.1], hi: [4.0, 0.0]}]",
+        "metrics=[]"])
+    x, v, rho, m = fluid(cfg)
+    rest = rest_state(cfg, m)
+    assert rest.known and abs(potential_energy(cfg, x, m) - rest.potential) < 1e-9 * rest.potential
+
+
 def test_gravity_along_a_periodic_axis_has_no_rest_state():
     cfg = load_config(CONFIGS / "poiseuille_2d.yaml")
     assert not rest_state(cfg, fluid(cfg)[3]).known

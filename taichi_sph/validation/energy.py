@@ -67,11 +67,32 @@ def _gravity_axis(cfg: Config) -> int | None:
 
 
 def _container(cfg: Config):
-    """Inner box of the first wall_box, else the domain box."""
+    """Inner box of the first wall_box; else the domain box with its floor (along gravity) moved to the face of the
+    nearest wall_block the fluid bodies rest on or fall onto: a periodic channel's bed. (With the domain's own
+    face as the floor, a 4 m periodic wave tank 0.15 m above it read 5.9 kJ above rest for its 2 J wave.)"""
     for b in cfg.bodies:
         if b.type == "wall_box":
             return np.asarray(b.lo, float), np.asarray(b.hi, float)
-    return np.asarray(cfg.domain.lo, float), np.asarray(cfg.domain.hi, float)
+    lo, hi = np.asarray(cfg.domain.lo, float), np.asarray(cfg.domain.hi, float)
+    axis = _gravity_axis(cfg)
+    if axis is None or axis < 0:
+        return lo, hi
+    down = cfg.gravity_vector[axis] < 0
+    fluid_ends = []
+    for b in cfg.bodies:
+        if b.type == "fluid_block" and b.lo is not None and b.hi is not None:
+            fluid_ends.append(b.lo[axis] if down else b.hi[axis])
+        elif b.type == "fluid_sphere" and b.center is not None and b.radius is not None:
+            fluid_ends.append(b.center[axis] - b.radius if down else b.center[axis] + b.radius)
+    if not fluid_ends:
+        return lo, hi
+    for b in cfg.bodies:
+        if b.type == "wall_block" and b.lo is not None and b.hi is not None:
+            if down and b.hi[axis] <= min(fluid_ends) + 1e-12:
+                lo[axis] = max(lo[axis], b.hi[axis])
+            elif not down and b.lo[axis] >= max(fluid_ends) - 1e-12:
+                hi[axis] = min(hi[axis], b.lo[axis])
+    return lo, hi
 
 
 def _layer_heights(cfg: Config, n: int, axis: int) -> tuple[np.ndarray, int]:
