@@ -140,3 +140,12 @@ def test_cell_walk_is_refused_for_isph():
     from taichi_sph.errors import ConfigError
     with pytest.raises(ConfigError, match="WCSPH only"):
         column_cfg(solver="isph", particles={"dx": 0.02, "neighbor_access": "cells"})
+
+
+def test_next_dt_is_the_dt_the_next_step_takes():
+    """What a paced caller (`view --realtime`) asks before it steps: the next step's own dt, here while the gravity
+    ramp changes it step by step (a step starts only if it ends within the wall clock)."""
+    solver = fresh(column_cfg(), True)
+    for _ in range(5):
+        guess = solver.next_dt()
+        assert solver.step() == pytest.approx(guess, rel=1e-5)
