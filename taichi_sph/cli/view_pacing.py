@@ -2,9 +2,10 @@
 (1/30 s minus the last frame's drawing and writing time) allows, at least one step; the rates over the
 last second (frames/s, steps/s, real-time factor), what a frame costs (stepping, drawing and writing apart)
 and why it runs below TARGET_FPS; the shown frames written to PNG on a background thread.
-With --realtime (the clock started after WARMUP_FRAMES frames) a frame steps only up to the wall clock (`WallClock`, `step_until`): a step starts only
-when t + dt <= t0 + (wall - wall0), so simulated time never runs ahead of the wall; a machine that falls
-behind drops the lag beyond MAX_LAG_S (shown as "behind"), and `realtime_report` sums the run up."""
+With --realtime (the clock started after WARMUP_FRAMES frames) a frame steps only up to the wall clock
+(`WallClock`, `step_until`): a step starts only when t + dt <= t0 + (wall - wall0), so simulated time never runs
+ahead of the wall; a machine that falls behind drops the lag beyond MAX_LAG_S (shown as "behind"), and
+`realtime_report` sums the run up."""
 
 from __future__ import annotations
 

@@ -168,7 +168,8 @@ def choose(cfg: Config, solvers: list[str], *, view: bool, log=print) -> Choice:
     """Measure (or read the cache), predict every candidate, pick dx per solver and the solver. A pick at a
     particle count no sample has is measured before it is trusted (the window compiles it anyway: the measured
     solver is the one it runs); if the prediction was wrong, the pick moves, up to MAX_CHECKS measurements."""
-    picks, shares, measured, last = [], {}, {}, None
+    picks, shares, measured = [], {}, set()
+    last = None  # (solver, dx, the measured solver, its memento) of the latest measurement: each resets Taichi
     for solver in solvers:
         entry = load_entry(cfg, solver)
         cands = candidates(cfg, solver)
@@ -176,35 +177,33 @@ def choose(cfg: Config, solvers: list[str], *, view: bool, log=print) -> Choice:
         shares[solver] = stepping_share(entry["draw_s"] or FIRST_DRAW_S) if view else 1.0
         if not samples:
             log(f"realtime: measuring {solver} at dx {cands[0].dx:g} ({cands[0].n} particles; compiling first) ...")
-            samples = _measure_into(cfg, solver, cands[0], samples, measured, log)
-            last = solver
+            samples, last = _measure_into(cfg, solver, cands[0], samples, log)
+            measured.add(solver)
         pick = pick_dx(solver, samples, cands, cfg.realtime.margin, shares[solver])
         for _ in range(MAX_CHECKS):
             if any(s.n == pick.cand.n for s in samples):
                 break
             log(f"realtime: checking {solver} at dx {pick.cand.dx:g} ({pick.cand.n} particles, predicted RTF "
                 f"{pick.rtf:.2g}) ...")
-            samples = _measure_into(cfg, solver, pick.cand, samples, measured, log)
-            last = solver
+            samples, last = _measure_into(cfg, solver, pick.cand, samples, log)
+            measured.add(solver)
             pick = pick_dx(solver, samples, cands, cfg.realtime.margin, shares[solver])
         picks.append(pick)
     best = pick_solver(picks) if len(picks) > 1 else picks[0]
     prepared = None
-    m = measured.get(best.solver)
-    if m is not None and m[0] == best.cand.dx and best.solver == last:  # (a later measurement resets Taichi)
-        prepared = (m[1], m[2])
+    if last is not None and last[:2] == (best.solver, best.cand.dx):
+        prepared = last[2:]
     line = describe(best, device_label(cfg.arch), shares[best.solver])
     return Choice(best, at_dx(cfg, best.cand.dx, best.solver), line, shares[best.solver], prepared,
                   best.solver in measured)
 
 
-def _measure_into(cfg: Config, solver: str, cand: Candidate, samples: list[Sample], measured: dict, log) -> list[Sample]:
-    """Measure `solver` at `cand`, cache the sample and return `samples` with it (replacing one at its count);
-    `measured[solver]` = (dx, the measured solver, its memento)."""
+def _measure_into(cfg: Config, solver: str, cand: Candidate, samples: list[Sample], log) -> tuple[list[Sample], tuple]:
+    """Measure `solver` at `cand` and cache the sample: `samples` with it (replacing one at its count), and
+    (solver, dx, the measured solver, its memento)."""
     sample, obj, memento = measure(at_dx(cfg, cand.dx, solver))
     store(cfg, solver, sample)
-    measured[solver] = (cand.dx, obj, memento)
     log(f"realtime: {solver}: {1e3 * sample.step_s:.2f} ms a step at {sample.n} particles, "
         f"{sample.particle_steps_per_s / 1e6:.3g} M particle-steps/s"
         + (f", {sample.iterations:.1f} PPE iterations a step" if sample.iterations else ""))
-    return [s for s in samples if s.n != sample.n] + [sample]
+    return [s for s in samples if s.n != sample.n] + [sample], (solver, cand.dx, obj, memento)

@@ -301,11 +301,16 @@ class SolverBase(KinematicWalls, CheckpointState):
 
     # -- time step --------------------------------------------------------------------------
     def choose_dt(self, max_speed: float, max_acc: float, sound_speed: float) -> float:
-        """dt = min(CFL h / (c + |v|max), CFL sqrt(h / |a|max), 0.125 h^2 / nu, dt_max), or the fixed dt."""
+        """The step: uncapped_dt, shortened to the run loop's cap (dt_cap: landing on an output or end time)."""
+        return min(self.uncapped_dt(max_speed, max_acc, sound_speed), self.dt_cap)
+
+    def uncapped_dt(self, max_speed: float, max_acc: float, sound_speed: float) -> float:
+        """dt = min(CFL h / (c + |v|max), CFL sqrt(h / |a|max), 0.125 h^2 / nu, dt_max), or the fixed dt;
+        last_dt_limit names the winner."""
         tc = self.cfg.time
         if tc.dt != AUTO:
             self.last_dt_limit = "fixed"
-            return min(float(tc.dt), self.dt_cap)
+            return float(tc.dt)
         limits = {}
         speed = sound_speed + max_speed
         if speed > 0:
@@ -319,14 +324,11 @@ class SolverBase(KinematicWalls, CheckpointState):
         if not limits:
             limits["cfl"] = self.cfg.cfl * self.h / max(self.cfg.expected_speed, 1e-12)
         self.last_dt_limit = min(limits, key=limits.get)
-        return min(float(limits[self.last_dt_limit]), self.dt_cap)
+        return float(limits[self.last_dt_limit])
 
     def free_dt(self, stats: dict) -> float:
-        """The next step's dt from the stats, before the run loop's cap (choose_dt with the sound speed c0)."""
-        cap, self.dt_cap = self.dt_cap, math.inf
-        dt = self.choose_dt(stats["max_speed"], stats["max_acc"], self.c0)
-        self.dt_cap = cap
-        return dt
+        """The next step's dt from the stats, before the run loop's cap (with the sound speed c0)."""
+        return self.uncapped_dt(stats["max_speed"], stats["max_acc"], self.c0)
 
     def next_dt(self) -> float:
         """The dt the next step will take (uncapped), from the current state: for a caller that paces steps."""

@@ -15,7 +15,6 @@ on the way (compression_only, the stretching drop's void, one-sided supports): d
 """
 
 # No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
-import math
 import time
 
 import numpy as np
@@ -283,10 +282,7 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
         the force limit on max(|a|max, |g|) (at rest |a| ~ 0 and |v| ~ 0: gravity still bounds the step,
         sqrt(h / g)); with `isph.step_force: explicit` |a|max is the last predictor's (0 before the first step)."""
         max_acc = self.explicit_acc[None] if self.explicit_step_force else stats["max_acc"]
-        cap, self.dt_cap = self.dt_cap, math.inf
-        dt = self.choose_dt(max(stats["max_speed"], self.wall_speed), max(max_acc, self.g_norm), 0.0)
-        self.dt_cap = cap
-        return dt
+        return self.uncapped_dt(max(stats["max_speed"], self.wall_speed), max(max_acc, self.g_norm), 0.0)
 
     def step(self) -> float:
         """Advance one step; returns the dt used."""

@@ -79,15 +79,13 @@ def _container(cfg: Config):
         return lo, hi
     down = cfg.gravity_vector[axis] < 0
     fluid_ends = []
-    for b in cfg.bodies:
-        if b.type == "fluid_block" and b.lo is not None and b.hi is not None:
+    for b in cfg.bodies:  # (validation guarantees one, and their lo/hi, centre and radius)
+        if b.type == "fluid_block":
             fluid_ends.append(b.lo[axis] if down else b.hi[axis])
-        elif b.type == "fluid_sphere" and b.center is not None and b.radius is not None:
+        elif b.type == "fluid_sphere":
             fluid_ends.append(b.center[axis] - b.radius if down else b.center[axis] + b.radius)
-    if not fluid_ends:
-        return lo, hi
     for b in cfg.bodies:
-        if b.type == "wall_block" and b.lo is not None and b.hi is not None:
+        if b.type == "wall_block":
             if down and b.hi[axis] <= min(fluid_ends) + 1e-12:
                 lo[axis] = max(lo[axis], b.hi[axis])
             elif not down and b.lo[axis] >= max(fluid_ends) - 1e-12:
