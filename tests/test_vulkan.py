@@ -19,7 +19,7 @@ import pytest
 
 from taichi_sph.config.loader import bundled_configs_dir, load_config
 from taichi_sph.linalg.ppe_slots import DONE, ITERATIONS
-from taichi_sph.run.runtime import current_arch_name, init_taichi, reset
+from taichi_sph.run.runtime import current_arch_name, device_has_float64, init_taichi, reset
 from taichi_sph.scene.bodies import build_particles
 from taichi_sph.solvers.registry import make_solver
 
@@ -151,6 +151,31 @@ def test_a_short_run_matches_the_cpu(solver, dim, access, extra):
           ", ".join(f"{k} {v:.2g}" for k, v in d.items()))
     for k, v in d.items():
         assert np.isfinite(v) and v <= TOLERANCE[solver][k], (k, d)
+
+
+# ----------------------------------------------------------------------------- without 64-bit floats
+@pytest.mark.parametrize("solver", ["wcsph", "isph"])
+def test_the_f32_only_path_on_the_device_matches_the_cpu(solver):
+    """`float64: false` on the device (what an Apple GPU through MoltenVK gets: the rebased f32 clock, the f32
+    stopping test) against the CPU's f64 clock and stopping test: the same steps, t, iterations within one, fields
+    within the same f32 drift bounds."""
+    extra = ("isph.ppe.solver=cg",) if solver == "isph" else ()
+    t_end = T_END[(solver, 2)]
+    cpu = run_on("cpu", scene(2, solver, "lists", *extra), t_end)
+    dev = run_on(DEVICE, scene(2, solver, "lists", *extra, "float64=false"), t_end)
+    assert dev["steps"] == cpu["steps"] >= 6 and dev["t"] == pytest.approx(t_end, abs=1e-9)
+    assert all(abs(a - b) <= 1 for a, b in zip(cpu["iterations"], dev["iterations"]))
+    d = drift(cpu, dev)
+    print(f"{solver} 2D float64 false: {cpu['steps']} steps, device - CPU: " + ", ".join(f"{k} {v:.2g}" for k, v in d.items()))
+    for k, v in d.items():
+        assert np.isfinite(v) and v <= TOLERANCE[solver][k], (k, d)
+
+
+def test_the_float64_probe_runs_on_the_device():
+    """The capability probe compiles and runs its one-value f64 kernel (lavapipe and NVIDIA GPUs have 64-bit
+    floats; a MoltenVK device would answer False and `float64: auto` would take the f32 path)."""
+    runtime(DEVICE)
+    assert device_has_float64()
 
 
 # ----------------------------------------------------------------------------- the PPE's stopping flag

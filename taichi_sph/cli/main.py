@@ -264,6 +264,7 @@ def cmd_check(args) -> int:
     from taichi_sph.run import disk
     from taichi_sph.run.checks import a_priori_checks, preflight
     from taichi_sph.run.memory import GIB, estimate, host_memory_available
+    from taichi_sph.run.runtime import precision_plan, test_arch_override
     if args.solver == "auto":
         raise UsageError("--solver auto chooses by real time: `taichi-sph run` or `view` with --realtime")
     cfg = config_from_args(args)
@@ -271,6 +272,7 @@ def cmd_check(args) -> int:
     out = default_out(cfg, args.out)
     checks = a_priori_checks(cfg)
     print(f"{args.config}: valid ({cfg.solver}, dim {cfg.dim}, dx {cfg.particles.dx:g}, c0 {cfg.sound_speed:.4g} m/s)")
+    print(precision_plan(cfg.precision, cfg.float64, test_arch_override(cfg.arch)))
     print(f"memory: {estimate(cfg, render=render).describe()} "
           f"({host_memory_available() / GIB:.1f} GiB host memory available)")
     print(f"disk: {disk.estimate_output(cfg, render=render).describe()} "

@@ -331,6 +331,10 @@ class Config:
     dim: int = opt(2, "spatial dimension", choices=(1, 2, 3))
     solver: str = opt("wcsph", "time-stepping scheme", choices=("wcsph", "isph"))
     precision: str = opt("f32", "floating-point precision of all fields", choices=("f32", "f64"))
+    float64: bool | str = opt(AUTO, "64-bit floats for the simulated clock (t, dt) and the PPE's stopping test "
+                                    "|r| / |b|: auto = where the device has them (not Apple GPUs through MoltenVK); "
+                                    "false = f32 only (a clock rebased every call, an f32 stopping test); true = "
+                                    "required")
     arch: str = opt("cpu", "Taichi backend", choices=("cpu", "cuda", "vulkan", "gpu", "auto"))
     seed: int = opt(0, "random seed (initial jitter, random velocity expressions)")
     gravity: tuple[float, ...] | None = opt(None, "body acceleration (dim numbers); None or zeros compiles it out", unit="m/s^2")

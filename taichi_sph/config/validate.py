@@ -104,6 +104,11 @@ def validate(cfg: Config, source: str) -> None:
     if cfg.particles.neighbor_access == "cells" and cfg.solver != "wcsph":
         raise ConfigError("'cells' is for WCSPH only: ISPH assembles its pressure equation from the stored lists; "
                           "use 'lists'", source=source, key="particles.neighbor_access")
+    if not isinstance(cfg.float64, bool) and cfg.float64 != AUTO:
+        raise ConfigError(f"must be true, false or 'auto', got {cfg.float64!r}", source=source, key="float64")
+    if cfg.precision == "f64" and cfg.float64 is False:
+        raise ConfigError("precision: f64 needs 64-bit floats; use precision: f32 with float64: false, or float64: auto",
+                          source=source, key="float64")
     mn = cfg.particles.max_neighbors
     if mn != AUTO and (isinstance(mn, str) or mn < 1):
         raise ConfigError(f"must be a positive integer or 'auto', got {mn!r}", source=source, key="particles.max_neighbors")

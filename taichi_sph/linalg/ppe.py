@@ -12,6 +12,7 @@ the same for every `check_every`. Measurements and design notes: docs/notes/ppe.
 """
 
 # No `from __future__ import annotations`: Taichi reads the kernels' argument annotations.
+import math
 import time
 
 import taichi as ti
@@ -71,7 +72,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
     """
 
     def __init__(self, p, nsearch, n: int, max_neighbors: int, solver: str, tolerance: float, max_iterations: int,
-                 omega: float, multigrid=None, check_every: int = 4) -> None:
+                 omega: float, multigrid=None, check_every: int = 4, wide=ti.f64) -> None:
         if solver not in PPE_SOLVERS:
             raise ValueError(f"unknown PPE solver '{solver}'; allowed: {', '.join(PPE_SOLVERS)}")
         self.p = p
@@ -100,7 +101,10 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
             self.mg = CellMultigrid(self, multigrid.smoother_omega, multigrid.coarse_scale, multigrid.coarsest_sweeps,
                                     multigrid.cell_sweeps, UNKNOWN, (RZ_NEW, SUM_Z, SUM_R))
         self.scalars = ti.field(float, 11)
-        self.progress = ti.field(ti.f64, 9)  # the solve's state on the device (slots DONE ... STARTING)
+        # the solve's state on the device (slots DONE ... STARTING), in f64 where the device has it
+        self.wide = wide
+        self.progress = ti.field(wide, 9)
+        self.limits_sent = [math.nan, math.nan]  # (tolerance, max_iterations) as last written to `progress`
         self.sums = RowSums(n, self.scalars, 3)  # every reduction over the particles (fixed order on the CPU)
         self.rows = PackedRows(nsearch, n, max_neighbors, self.sums)  # the pair coefficients
         # CPU: whether the iteration loops run on one thread (see `_choose_schedule`); elsewhere parallel
@@ -136,9 +140,9 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
     def check_convergence(self):
         """DONE = not (|r| / |b| > tolerance and iterations < max_iterations), in f64 as the host used to test it
         (sqrt(f64(|r|^2)) / sqrt(f64(|b|^2))), so the iterations stop exactly where a per-iteration host test
-        stopped them; NaN stops too."""
+        stopped them (in f32 on a device without 64-bit floats); NaN stops too."""
         if self.progress[DONE] == 0.0:
-            relative = ti.sqrt(ti.cast(self.scalars[RR], ti.f64)) / self.progress[NORM_B]
+            relative = ti.sqrt(ti.cast(self.scalars[RR], self.wide)) / self.progress[NORM_B]
             self.progress[RESIDUAL] = relative
             if not (relative > self.progress[TOLERANCE] and self.progress[ITERATIONS] < self.progress[MAX_ITERATIONS]):
                 self.progress[DONE] = 1.0
@@ -160,11 +164,10 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         return ti.Vector([b * b])
 
     @ti.kernel
-    def begin_solve(self, level: float, tolerance: ti.f64, max_iterations: ti.f64):
+    def begin_solve(self, level: float):
         """The solve's start on the device: no unknown -> done; no Dirichlet particle -> pinned (b projected onto
-        the range of A, zero mean, |b|^2 recomputed); |b| = 0 -> p = 0 (or the level at pinned) and done."""
-        self.progress[TOLERANCE] = tolerance
-        self.progress[MAX_ITERATIONS] = max_iterations
+        the range of A, zero mean, |b|^2 recomputed); |b| = 0 -> p = 0 (or the level at pinned) and done.
+        (TOLERANCE and MAX_ITERATIONS are written by the host: `solve`.)"""
         self.progress[STARTING] = 1.0  # mgcg: the first launch of `mgcg_iteration` is CG's start
         for s in ti.static((DONE, ITERATIONS, PINNED, TRIVIAL)):
             self.progress[s] = 0.0
@@ -175,7 +178,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
             self.progress[PINNED] = 1.0
         mean = self.scalars[SUM_B] / ti.max(self.scalars[N_UNKNOWN], 1.0)
         self.sums.add_live(self.mean_free_rhs_row, (BB,), False, mean, ti.cast(self.progress[PINNED], ti.i32))
-        norm_b = ti.sqrt(ti.cast(self.scalars[BB], ti.f64))
+        norm_b = ti.sqrt(ti.cast(self.scalars[BB], self.wide))
         self.progress[NORM_B] = norm_b
         if self.progress[DONE] == 0.0 and norm_b == 0.0:  # the solution is p = 0 (or the level)
             self.progress[DONE] = 1.0
@@ -212,7 +215,11 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         reads the solve's state (one small read-back) after each batch: iterations launched after the test
         said done are empty, so the result does not depend on `check_every`.
         """
-        self.begin_solve(neumann_level, self.tolerance, self.max_iterations)
+        limits = [float(self.tolerance), float(self.max_iterations)]
+        if limits != self.limits_sent:  # written in the progress field's own type (f64, or f32 without it)
+            self.progress[TOLERANCE], self.progress[MAX_ITERATIONS] = limits
+            self.limits_sent = limits
+        self.begin_solve(neumann_level)
         serial = bool(self.serial)
         iterate = {"mgcg": self.mgcg_iteration, "cg": self.cg_iteration, "jacobi": self.jacobi_iteration}[self.solver]
         if self.solver == "cg":

@@ -12,6 +12,7 @@ from taichi_sph.config.schema import AUTO, Config
 from taichi_sph.physics.body_force import harmonic_central_force
 from taichi_sph.physics.eos import tait_density, tait_pressure
 from taichi_sph.physics.walls import adami_wall_pressure, adami_wall_velocity
+from taichi_sph.run.runtime import wide_float
 from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays, tait_b
 from taichi_sph.scene.lattice import lattice_kernel_sum, max_neighbors_for
 from taichi_sph.solvers.clock import DeviceClock
@@ -35,7 +36,9 @@ class SolverBase(KinematicWalls, CheckpointState):
 
     def __init__(self, cfg: Config, arrays: ParticleArrays) -> None:
         self.cfg = cfg
-        self.features = Features.from_config(cfg, arrays.n_wall)
+        # the clock's and the PPE stopping test's float: f64 unless the device has none (or float64: false)
+        self.wide = wide_float(cfg.float64, cfg.precision)
+        self.features = Features.from_config(cfg, arrays.n_wall, wide="f64" if self.wide == ti.f64 else "f32")
         f = self.features
         self.dim = cfg.dim
         self.kernel = make_kernel(cfg.particles.kernel, cfg.dim, cfg.h)
@@ -88,7 +91,7 @@ class SolverBase(KinematicWalls, CheckpointState):
         self.dt_cap = math.inf  # the run loop caps the step so that t lands on t_end
         # t, dt and `live` on the device: the step passes test `live()` for each particle, so that a step a
         # device-resident loop does not take is empty (solvers stepping from the host leave live at 1)
-        self.clock = DeviceClock()
+        self.clock = DeviceClock(wide=self.wide)
 
     # -- neighbours ---------------------------------------------------------------------
     def rebuild_neighbors(self, serial: bool = False) -> None:

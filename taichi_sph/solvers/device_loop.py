@@ -10,7 +10,6 @@ t, the steps' dts and the stats once per `advance` call: at output, guard, frame
 import math
 import time
 
-import numpy as np
 import taichi as ti
 
 from taichi_sph.config.schema import AUTO, Config
@@ -32,7 +31,7 @@ class DeviceResidentLoop:
         self.gravity_ramp = float(cfg.gravity_ramp) if self.features.gravity else 0.0
         self.gravity_full = tuple(float(g) for g in cfg.gravity_vector)
         self.shift_cap = shift_cap
-        self.clock_host = np.zeros(DeviceClock.HEADER + self.clock.capacity, dtype=np.float64)
+        self.clock_host = self.clock.export_buffer()
         self.binding = None  # the neighbour build bound to the persistent fields (made in prepare)
 
     @ti.func
@@ -85,15 +84,15 @@ class DeviceResidentLoop:
             self.gravity[None] = factor * ti.Vector(self.gravity_full, dt=float)
 
     @ti.func
-    def open_step_pass(self, i, t_stop, t_end):
+    def open_step_pass(self, i):
         """Whether the call's step i runs; its dt, the body force at t + dt, and whether lists are rebuilt."""
         C = self.clock
         ti.loop_config(serialize=True)
         for _ in range(1):
             rebuild = 0
-            if C.open_step(i, t_stop, t_end):
-                dt = C.set_dt(self.dt_rule(), t_end)
-                self.ramped_gravity(ti.cast(C.t[None] + C.dt[None], float))
+            if C.open_step(i):
+                dt = C.set_dt(self.dt_rule())
+                self.ramped_gravity(C.time_after_step())
                 rebuild = self.skin_used_up(dt)
             self.nsearch.gate[None] = rebuild
 
@@ -112,16 +111,16 @@ class DeviceResidentLoop:
             self.clock.builds[None] += 1
 
     @ti.kernel
-    def step_kernel(self, i: ti.i32, t_stop: ti.f64, t_end: ti.f64, serial: ti.template()):
+    def step_kernel(self, i: ti.i32, serial: ti.template()):
         """One step: one launch (each pass a loop, run in order)."""
-        self.step_passes(i, t_stop, t_end, serial)
+        self.step_passes(i, serial)
 
     @ti.kernel
-    def advance_serial(self, max_steps: ti.i32, t_stop: ti.f64, t_end: ti.f64, out: ti.types.ndarray()):
+    def advance_serial(self, max_steps: ti.i32, out: ti.types.ndarray()):
         """Up to max_steps steps on one thread in one launch, then the clock to `out`."""
         ti.loop_config(serialize=True)
         for i in range(max_steps):
-            self.step_passes(i, t_stop, t_end, True)
+            self.step_passes(i, True)
         self.clock.export(self.stats, out)
 
     @ti.kernel
@@ -130,15 +129,16 @@ class DeviceResidentLoop:
 
     def launch_steps(self, max_steps: int, t_stop: float, t_end: float, serial: bool) -> list[float]:
         """Launch up to max_steps steps and read the clock back once: returns the steps' dts."""
+        self.clock.set_bounds(self.t, t_stop, t_end)
         if serial:
-            self.advance_serial(max_steps, t_stop, t_end, self.clock_host)
+            self.advance_serial(max_steps, self.clock_host)
         else:
             for i in range(max_steps):
-                self.step_kernel(i, t_stop, t_end, False)
+                self.step_kernel(i, False)
             self.export_clock(self.clock_host)
         out = self.clock_host
         done = int(out[1])
-        self.t = float(out[0])
+        self.t = self.clock.host_time(float(out[0]))
         self.step_count += done
         self.last_dt_limit = DT_LIMITS[int(out[2])]
         self.builds = int(out[3])

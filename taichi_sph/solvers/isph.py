@@ -80,7 +80,7 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
         self.continuity_density = ContinuityDensity(self) if self.continuity else None
         self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
                                  ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid,
-                                 ic.ppe.check_every)
+                                 ic.ppe.check_every, self.wide)
         self.shifting = ParticleShifting(self, cfg.shifting_coefficient) if self.features.shifting else None
         self.iterations: list[int] = []
         self.residuals: list[float] = []

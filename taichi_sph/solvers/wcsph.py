@@ -266,14 +266,14 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
 
     # -- one step (the device-resident loop around it: solvers/device_loop.py) ---------------------
     @ti.func
-    def step_passes(self, i, t_stop, t_end, serial: ti.template()):
+    def step_passes(self, i, serial: ti.template()):
         """One step (skipped when the clock says so).
 
         symplectic_euler: v^{n+1} = v^n + dt a^n; rho^{n+1} = rho^n + dt drho(v^{n+1}); x^{n+1} = x^n + dt v^{n+1}.
         leapfrog (kick-drift-kick): half kick with a^n, drift x and rho with v^{n+1/2}, forces at n+1, half kick.
         Forces of the new state end the step (their stats choose the next dt and tell whether the lists
         stay valid for the next drift)."""
-        self.open_step_pass(i, t_stop, t_end)
+        self.open_step_pass(i)
         dt = ti.cast(self.clock.dt[None], float)
         dt_kick = dt
         if ti.static(self.features.integrator == "leapfrog"):
@@ -298,7 +298,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                 self.shifting.move_pass(serial)
         ti.loop_config(serialize=True)
         for _ in range(1):
-            self.clock.close_step(t_end)
+            self.clock.close_step()
 
     def prepare(self) -> None:
         """Pressure, neighbour lists, then accelerations and stats of the initial state.
@@ -312,7 +312,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         self.binding = self.nsearch.binding(self.particles.x, self.particles.persistent_fields)
         if self.binding.other:
             raise ValueError("the device-resident build permutes one value per particle; a multi-index field is bound")
-        self.clock.t[None] = self.t
+        self.clock.set_time(self.t)
         self.clock.builds[None] = self.builds
         variants = (True, False) if self.schedule.deciding else (self.schedule.next(),)
         for serial in variants:

@@ -16,6 +16,7 @@ class Features:
     solver: str
     kernel: str
     precision: str
+    wide: str                     # the clock's and the PPE stopping test's float: f64, or f32 without 64-bit floats
     walls: bool
     moving_walls: bool
     no_slip: bool
@@ -35,7 +36,7 @@ class Features:
     clamp_negative_pressure: bool
 
     @classmethod
-    def from_config(cls, cfg: Config, n_wall: int) -> "Features":
+    def from_config(cls, cfg: Config, n_wall: int, wide: str = "f64") -> "Features":
         wc = cfg.wcsph
         walls = n_wall > 0
         moving = any(b.type.startswith("wall") and b.velocity is not None
@@ -51,6 +52,7 @@ class Features:
             solver=cfg.solver,
             kernel=cfg.particles.kernel,
             precision=cfg.precision,
+            wide=wide,
             walls=walls,
             moving_walls=walls and moving,
             no_slip=walls and cfg.walls.slip == "no_slip",
@@ -73,6 +75,8 @@ class Features:
     def compiled_in(self) -> list[str]:
         """Human-readable list of the terms compiled into this run's kernels."""
         terms = [f"{self.solver}", f"kernel:{self.kernel}", f"dim:{self.dim}", f"precision:{self.precision}"]
+        if self.wide != "f64":
+            terms.append(f"clock_and_stopping_test:{self.wide}")
         if self.solver == "wcsph":
             terms += ["tait_eos", "symmetric_pressure_gradient", f"density:{self.density}", f"integrator:{self.integrator}"]
             if self.density_diffusion != "none":
