@@ -192,7 +192,8 @@ class PPE:
     tolerance: float = opt(1e-4, "relative residual ||b - A p|| / ||b|| to stop at", positive=True)
     max_iterations: int = opt(1000, "iteration cap; reaching it is a warning in the summary", minimum=1)
     omega: float = opt(0.6, "weighted-Jacobi relaxation factor", positive=True)
-    check_every: int = opt(4, "PPE iterations launched between two host read-backs of the solve state; the stopping "
+    check_every: int = opt(4, "PPE iterations launched between two host read-backs of the solve state, after the first "
+                              "read-back (made after as many iterations as the last solve took); the stopping "
                               "test runs on the device after every iteration (later iterations are empty), so the "
                               "result does not depend on it: it trades read-backs (a device sync each) against "
                               "empty launches after convergence", minimum=1)

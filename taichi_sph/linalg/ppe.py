@@ -105,6 +105,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         self.wide = wide
         self.progress = ti.field(wide, 9)
         self.limits_sent = [math.nan, math.nan]  # (tolerance, max_iterations) as last written to `progress`
+        self.last_iterations = 0  # the last solve's iteration count (`first_batch`)
         self.sums = RowSums(n, self.scalars, 3)  # every reduction over the particles (fixed order on the CPU)
         self.rows = PackedRows(nsearch, n, max_neighbors, self.sums)  # the pair coefficients
         # CPU: whether the iteration loops run on one thread (see `_choose_schedule`); elsewhere parallel
@@ -211,9 +212,9 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
 
         Returns (iterations, relative residual, pure_neumann). Without any Dirichlet particle the right
         side is projected to zero mean and the result shifted to mean `neumann_level`. The stopping test
-        runs on the device after every iteration; the host launches `check_every` iterations at a time and
-        reads the solve's state (one small read-back) after each batch: iterations launched after the test
-        said done are empty, so the result does not depend on `check_every`.
+        runs on the device after every iteration; the host launches the last solve's iteration count, then
+        `check_every` iterations at a time, and reads the solve's state (one small read-back) after each batch:
+        iterations launched after the test said done are empty, so the result does not depend on the batches.
         """
         limits = [float(self.tolerance), float(self.max_iterations)]
         if limits != self.limits_sent:  # written in the progress field's own type (f64, or f32 without it)
@@ -227,17 +228,27 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         elif self.solver == "mgcg":
             self.mg.assemble(serial)
             self.mgcg_iteration(serial)  # the start
+        batch = self.first_batch()
         while True:
             if self.serial is None:
-                self._choose_schedule(iterate, max(self.check_every, SCHEDULE_PROBE))
+                self._choose_schedule(iterate, max(batch, SCHEDULE_PROBE))
             else:
-                for _ in range(self.check_every):
+                for _ in range(batch):
                     iterate(self.serial)
             state = self.progress.to_numpy()
             if state[DONE] > 0.0:
                 break
+            batch = self.check_every
         self.end_solve(neumann_level)
+        self.last_iterations = int(state[ITERATIONS])
         return int(state[ITERATIONS]), float(state[RESIDUAL]), bool(state[PINNED])
+
+    def first_batch(self) -> int:
+        """Iterations launched before the first read-back: the last solve's count (a time step's solve needs about
+        as many as the previous one's, a few more or less), at least `check_every`. A solve that needs as many
+        or fewer is read back once (the surplus iterations are empty); one that needs more, once more every
+        `check_every`. The result does not depend on it (the stopping test runs on the device)."""
+        return max(self.check_every, min(self.last_iterations, self.max_iterations))
 
     def _choose_schedule(self, iterate, count: int) -> None:
         """Run `count` (>= 4) iterations, half on one thread and half in parallel (each variant compiled by
