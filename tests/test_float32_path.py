@@ -10,9 +10,9 @@ from test_device_loop import by_id, column_cfg, fresh
 from test_isph import tank_cfg
 
 from taichi_sph.errors import ConfigError, SPHError
-from taichi_sph.run import runtime
 from taichi_sph.run.simulation import Simulation
 from taichi_sph.solvers.clock import f32_at_least
+from taichi_sph.sph import precision
 
 
 def test_f32_at_least_rounds_up():
@@ -87,12 +87,12 @@ def test_float64_off_with_f64_fields_is_a_config_error():
 
 def test_a_device_without_f64_gets_the_f32_path(monkeypatch):
     """auto falls back to f32; `float64: true` and `precision: f64` name the cause."""
-    monkeypatch.setattr(runtime, "device_has_float64", lambda: False)
-    assert runtime.wide_float("auto") == ti.f32 and runtime.wide_float(False) == ti.f32
+    monkeypatch.setattr(precision, "device_has_float64", lambda: False)
+    assert precision.wide_float("auto") == ti.f32 and precision.wide_float(False) == ti.f32
     with pytest.raises(SPHError, match="no 64-bit floats"):
-        runtime.wide_float(True)
+        precision.wide_float(True)
     with pytest.raises(SPHError, match="precision: f64"):
-        runtime.wide_float("auto", "f64")
+        precision.wide_float("auto", "f64")
     monkeypatch.undo()
-    assert runtime.device_has_float64()  # this CPU
-    assert runtime.wide_float("auto") == ti.f64
+    assert precision.device_has_float64()  # this CPU
+    assert precision.wide_float("auto") == ti.f64

@@ -19,9 +19,10 @@ import pytest
 
 from taichi_sph.config.loader import bundled_configs_dir, load_config
 from taichi_sph.linalg.ppe_slots import DONE, ITERATIONS
-from taichi_sph.run.runtime import current_arch_name, device_has_float64, init_taichi, reset
+from taichi_sph.run.runtime import current_arch_name, init_taichi, reset
 from taichi_sph.scene.bodies import build_particles
 from taichi_sph.solvers.registry import make_solver
+from taichi_sph.sph.precision import device_has_float64
 
 ENV = "TAICHI_SPH_TEST_ARCH"
 DEVICE = os.environ.get(ENV, "").strip()

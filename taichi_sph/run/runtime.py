@@ -9,6 +9,7 @@ import os
 import taichi as ti
 
 from taichi_sph.errors import SPHError
+from taichi_sph.sph.precision import forget_float64
 
 _ARCHES = {
     "cpu": lambda: ti.cpu,
@@ -21,7 +22,6 @@ ARCH_NAMES = tuple(_ARCHES)
 PRECISIONS = ("f32", "f64")
 
 _current: tuple[str, str] | None = None
-_float64: bool | None = None  # whether the current device has 64-bit floats (probed once per init)
 
 
 def init_taichi(arch: str = "cpu", precision: str = "f32", *, force: bool = False, debug: bool = False) -> None:
@@ -30,7 +30,7 @@ def init_taichi(arch: str = "cpu", precision: str = "f32", *, force: bool = Fals
     `auto` and `gpu` take the first GPU backend Taichi finds (cuda, then vulkan, ...; ti.gpu is that list) and
     fall back to the CPU when there is none; a named arch that Taichi cannot start is an error.
     """
-    global _current, _float64
+    global _current
     arch = test_arch_override(arch)
     if arch not in _ARCHES:
         raise SPHError(f"unknown arch '{arch}'; allowed: {', '.join(ARCH_NAMES)}")
@@ -54,49 +54,7 @@ def init_taichi(arch: str = "cpu", precision: str = "f32", *, force: bool = Fals
                 f"{ti.lang.impl.current_cfg().arch.name}); use --arch cpu or install the {arch} driver"
             )
     _current = key
-    _float64 = None
-
-
-def device_has_float64() -> bool:
-    """Whether the current device computes with 64-bit floats. CPUs and CUDA do; a Vulkan (or Metal) device only
-    with shaderFloat64, which Apple GPUs through MoltenVK lack: found by compiling and running a one-value f64
-    kernel, once per runtime."""
-    global _float64
-    if _float64 is None:
-        if current_arch_name() in ("x64", "arm64", "cuda"):
-            _float64 = True
-        else:
-            _float64 = _probe_float64()
-    return _float64
-
-
-def _probe_float64() -> bool:
-    try:
-        with contextlib.redirect_stderr(io.StringIO()):
-            value = ti.field(ti.f64, ())
-
-            @ti.kernel
-            def halve():
-                value[None] = ti.cast(3.0, ti.f64) * 0.5
-
-            halve()
-            return float(value[None]) == 1.5
-    except Exception:  # noqa: BLE001 -- any failure to compile or run f64 code means: no f64 here
-        return False
-
-
-def wide_float(setting: bool | str, precision: str = "f32"):
-    """The type of the clock (t, dt) and of the PPE's stopping test: ti.f64 unless `float64: false` or (auto) the
-    device lacks 64-bit floats; `float64: true` or `precision: f64` on such a device is an error."""
-    if setting is False:
-        return ti.f32
-    if device_has_float64():
-        return ti.f64
-    if setting is True or precision == "f64":
-        what = "float64: true" if setting is True else "precision: f64"
-        raise SPHError(f"{what}: this {current_arch_name()} device has no 64-bit floats (Apple GPUs through "
-                       "MoltenVK have none); use precision: f32 with float64: auto (or off)")
-    return ti.f32
+    forget_float64()
 
 
 def test_arch_override(arch: str) -> str:
@@ -117,10 +75,10 @@ def current_arch_name() -> str:
 
 def reset() -> None:
     """Forget the current runtime (tests that need a fresh one)."""
-    global _current, _float64
+    global _current
     ti.reset()
     _current = None
-    _float64 = None
+    forget_float64()
 
 
 def precision_plan(precision: str, float64: bool | str, arch: str) -> str:

@@ -12,7 +12,6 @@ from taichi_sph.config.schema import AUTO, Config
 from taichi_sph.physics.body_force import harmonic_central_force
 from taichi_sph.physics.eos import tait_density, tait_pressure
 from taichi_sph.physics.walls import adami_wall_pressure, adami_wall_velocity
-from taichi_sph.run.runtime import wide_float
 from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays, tait_b
 from taichi_sph.scene.lattice import lattice_kernel_sum, max_neighbors_for
 from taichi_sph.solvers.clock import DeviceClock
@@ -22,6 +21,7 @@ from taichi_sph.sph.features import Features
 from taichi_sph.sph.kernels import make_kernel
 from taichi_sph.sph.neighbors import NeighborSearch
 from taichi_sph.sph.particles import ParticleFields, np_float
+from taichi_sph.sph.precision import wide_float
 
 
 class SolverBase(KinematicWalls, CheckpointState):
