@@ -156,6 +156,15 @@ class WCSPH:
                                                    "in tension (p_a < 0) away from the free surface takes the pressure "
                                                    "gradient in the difference form (p_b - p_a), which has no pairwise "
                                                    "attraction; needs `shifting.model: sun` (its free-surface region)")
+    surface_pressure_gradient: str = opt("symmetric", "symmetric: -sum_b m_b (p_a / rho_a^2 + p_b / rho_b^2) grad W_ab; "
+                                                      "kernel_sum_scaled: the same with p / (S / S_lattice) in place of p "
+                                                      "where the kernel sum S is deficient (the free-surface band): the "
+                                                      "symmetric form approximates grad(p S) / rho there, so this one "
+                                                      "grad p / rho, still pairwise antisymmetric "
+                                                      "(physics/momentum.py kernel_sum_scaled_pressure)",
+                                         choices=("symmetric", "kernel_sum_scaled"))
+    surface_scale_floor: float = opt(0.5, "kernel_sum_scaled: S / S_lattice is floored at this (a flat surface's top row has "
+                                          "0.65 at h = 2 dx; a lone splash particle would have ~0.1)", positive=True)
     wall_clearance: float | None = opt(0.25, "kinematic wall condition (as ISPH's): the speed toward a wall face is cut so "
                                              "that no fluid particle comes closer than this to it (fluid starts dx/2 away). "
                                              "Without it the thin fast layer after a dam-break impact sinks up to 0.32 dx past "

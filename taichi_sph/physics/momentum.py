@@ -26,6 +26,19 @@ def difference_pressure_gradient(m_b: float, p_a: float, rho_a: float, p_b: floa
 
 
 @ti.func
+def kernel_sum_scaled_pressure(p: float, kernel_sum_ratio: float, floor: float) -> float:
+    """q = p / s, s = S / S_lattice clamped to [floor, 1], S = sum_b V_b W_ab (a included): the pressure that the
+    symmetric gradient takes in the free-surface band. Derivation (continuum, p = 0 at the surface so that the
+    boundary integral of p W vanishes; Colagrossi, Antuono & Le Touze 2009, Phys. Rev. E 79 056701):
+    sum_b V_b p_b grad_a W_ab ~ S grad p and sum_b V_b grad_a W_ab = grad S, so the symmetric form
+    -(1/rho) sum_b V_b (p_a + p_b) grad_a W_ab ~ -grad(p S) / rho: where the surface cuts the kernel the surface
+    rows must hold p ~ rho g d / S to stay at rest (the hydrostatic tank's top row at ~2x). Fed with q = p / S it
+    approximates -grad p / rho, and stays pairwise antisymmetric (momentum-conserving), keeping the p_a term's
+    repulsion. s = 1 in the bulk (no change there)."""
+    return p / ti.min(ti.max(kernel_sum_ratio, floor), 1.0)
+
+
+@ti.func
 def monaghan_artificial_pressure(p: float, rho: float, epsilon: float, epsilon_positive: float) -> float:
     """Monaghan (2000) R = epsilon |p| / rho^2 for p < 0, epsilon_positive p / rho^2 for p >= 0 (his 0.01)."""
     return ti.select(p < 0.0, -epsilon * p, epsilon_positive * p) / (rho * rho)

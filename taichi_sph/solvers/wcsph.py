@@ -21,6 +21,7 @@ from taichi_sph.physics.density import (
 )
 from taichi_sph.physics.momentum import (
     difference_pressure_gradient,
+    kernel_sum_scaled_pressure,
     monaghan_tensile_correction,
     monaghan_viscosity,
     morris_laminar_viscosity,
@@ -52,6 +53,9 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         self.delta_h_c0 = cfg.wcsph.density_diffusion.delta * self.h * self.c0
         tc = cfg.wcsph.tensile_correction
         self.tc_epsilon, self.tc_epsilon_positive, self.tc_n = tc.epsilon, tc.epsilon_positive, tc.n
+        self.surface_scale_floor = cfg.wcsph.surface_scale_floor
+        # q = p / (S / S_lattice) of every particle (walls: p), set before the force pass
+        self.q_pressure = P.add_scalar() if f.surface_scaled_pressure else None
         self.w_dx = float(self.kernel.w_np(np.array([self.dx]))[0])
         self.shifting = ParticleShifting(self, cfg.shifting_coefficient) if f.shifting else None
         self.schedule = LoopSchedule()
@@ -80,7 +84,30 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
             self.adami_wall_pass(serial)
         if ti.static(self.features.density_diffusion == "antuono"):
             self.density_gradient_pass(serial)
+        if ti.static(self.features.surface_scaled_pressure):
+            self.scaled_pressure_pass(serial)
         self.wcsph_forces_pass(serial)
+
+    @ti.func
+    def scaled_pressure_pass(self, serial: ti.template()):
+        """q_a = p_a / (S_a / S_lattice) for fluid particles (physics/momentum.py kernel_sum_scaled_pressure),
+        S_a = sum_b V_b W_ab over fluid and wall neighbours, a included; q = p for wall particles."""
+        P = self.particles
+        ti.loop_config(serialize=serial)
+        for a in range(self.n):
+            if self.live():
+                q = P.p[a]
+                if P.kind[a] == FLUID:
+                    ksum = P.mass[a] / P.rho[a] * self.kernel.w0
+                    self.nsearch.for_each_neighbor(a, P.x, self.kernel_sum_pair, ksum)
+                    q = kernel_sum_scaled_pressure(P.p[a], ksum * self.inv_lattice_sum, self.surface_scale_floor)
+                self.q_pressure[a] = q
+
+    @ti.func
+    def kernel_sum_pair(self, a, b, r_ab, ksum: ti.template()):
+        """ksum += V_b W_ab."""
+        P = self.particles
+        ksum += P.mass[b] / P.rho[b] * self.kernel.w(r_ab.norm())
 
     @ti.func
     def density_gradient_pass(self, serial: ti.template()):
@@ -115,10 +142,13 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
             if self.live():
                 if P.kind[a] == FLUID:
                     xa, p_a = P.x[a], P.p[a]
+                    q_a = p_a
+                    if ti.static(self.features.surface_scaled_pressure):
+                        q_a = self.q_pressure[a]
                     # tensile instability control: both pressure forms summed, one kept (compiled out without it)
                     sums = ti.Struct(va=P.v[a], rho_a=P.rho[a], p_a=p_a, acc=ti.Vector.zero(float, self.dim), drho=0.0,
                                      near_wall=0, acc_tension=ti.Vector.zero(float, self.dim),
-                                     acc_pressure=ti.Vector.zero(float, self.dim))
+                                     acc_pressure=ti.Vector.zero(float, self.dim), q_a=q_a)
                     self.nsearch.for_each_neighbor(a, P.x, self.force_pair, sums)
                     acc = sums.acc
                     if ti.static(self.features.tensile_instability_control):
@@ -169,11 +199,14 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
     def pressure_pair(self, b, m_b, rho_b, grad_w, sums: ti.template()):
         """The symmetric pressure gradient, or (tensile instability control) both forms summed apart."""
         p_b = self.particles.p[b]
+        q_b = p_b  # the pressure the symmetric form takes (kernel_sum_scaled: q = p / (S / S_lattice))
+        if ti.static(self.features.surface_scaled_pressure):
+            q_b = self.q_pressure[b]
         if ti.static(self.features.tensile_instability_control):
             sums.acc_tension += difference_pressure_gradient(m_b, sums.p_a, sums.rho_a, p_b, rho_b, grad_w)
-            sums.acc_pressure += symmetric_pressure_gradient(m_b, sums.p_a, sums.rho_a, p_b, rho_b, grad_w)
+            sums.acc_pressure += symmetric_pressure_gradient(m_b, sums.q_a, sums.rho_a, q_b, rho_b, grad_w)
         else:
-            sums.acc += symmetric_pressure_gradient(m_b, sums.p_a, sums.rho_a, p_b, rho_b, grad_w)
+            sums.acc += symmetric_pressure_gradient(m_b, sums.q_a, sums.rho_a, q_b, rho_b, grad_w)
 
     @ti.func
     def tensile_correction_pair(self, b, m_b, rho_b, is_fluid_b, r, grad_w, sums: ti.template()):

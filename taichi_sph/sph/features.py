@@ -28,6 +28,7 @@ class Features:
     density_diffusion: str        # none | molteni | fourtakas | antuono
     tensile_correction: bool
     tensile_instability_control: bool  # Sun et al. 2017's difference form in tension (WCSPH)
+    surface_scaled_pressure: bool      # p / (S / S_lattice) in the symmetric pressure gradient (WCSPH)
     integrator: str
     periodic: tuple[bool, ...]
     reflecting: bool
@@ -64,6 +65,7 @@ class Features:
             density_diffusion=diffusion,
             tensile_correction=cfg.solver == "wcsph" and wc.tensile_correction.enabled,
             tensile_instability_control=cfg.solver == "wcsph" and wc.tensile_instability_control,
+            surface_scaled_pressure=cfg.solver == "wcsph" and wc.surface_pressure_gradient == "kernel_sum_scaled",
             integrator=wc.integrator if cfg.solver == "wcsph" else "symplectic_euler",
             periodic=tuple(cfg.periodic),
             reflecting=cfg.reflecting.enabled,
@@ -85,6 +87,8 @@ class Features:
                 terms.append("monaghan_tensile_correction")
             if self.tensile_instability_control:
                 terms.append("tensile_instability_control")
+            if self.surface_scaled_pressure:
+                terms.append("kernel_sum_scaled_pressure")
         if self.artificial_viscosity:
             terms.append("monaghan_artificial_viscosity")
         if self.laminar_viscosity:
