@@ -64,6 +64,12 @@ class Fluid:
     reference_speed: float | None = opt(None, "the largest flow speed the scene expects, e.g. sqrt(2 g H) for a dam break", unit="m/s", positive=True)
     gamma: float = opt(7.0, "Tait exponent, p = B((rho/rho0)^gamma - 1), B = c0^2 rho0 / gamma", positive=True)
     nu: float = opt(0.0, "kinematic viscosity (laminar, Morris et al. 1997 form); 0 compiles it out", unit="m^2/s", minimum=0.0)
+    laplacian: str = opt("morris", "the laminar viscosity's Laplacian: Morris et al. (1997) as it is, or 'normalised': divided by "
+                                   "its lattice sum (scene/lattice.py lattice_gradient_sum, as ISPH's PPE), so that it is exact "
+                                   "for a quadratic velocity on the lattice at any h / dx (quintic at h = dx: the plain form is "
+                                   "0.6% low, a decay-rate error that no resolution removes), or 'renormalised': WCSPH only, over each "
+                                   "particle's own second moment (physics/momentum.py renormalised_laplacian; ISPH takes "
+                                   "'normalised' for it)", choices=("morris", "normalised", "renormalised"))
     background_pressure: float = opt(0.0, "constant added to the equation of state (p_b); keeps pressure positive in closed "
                                           "flows; for ISPH the ambient pressure at a free surface and the mean pressure "
                                           "in closed boxes", unit="Pa", minimum=0.0)
@@ -137,6 +143,10 @@ class Shifting:
                      choices=("skillen", "sun"))
     coefficient: float = opt(2.0, "A in the shift dr_a = -D grad C_a with D = A h U dt (U: see shifting.model)", minimum=0.0)
     max_shift: float = opt(0.1, "cap on |dr_a| per step, as a fraction of dx", positive=True)
+    velocity_correction: bool = opt(False, "Taylor correction after the shift: v_a += (grad v)_a . dr_a (and, with WCSPH's "
+                                           "continuity density, rho_a += (grad rho)_a . dr_a), with the renormalised gradient "
+                                           "(physics/shifting.py taylor_correction; Xu, Stansby & Laurence 2009, Lind et "
+                                           "al. 2012). Without it a shifted particle keeps the velocity of the point it left")
 
 
 @dataclass(frozen=True)
@@ -152,6 +162,12 @@ class WCSPH:
     artificial_viscosity: ArtificialViscosity = opt(factory=ArtificialViscosity, doc="Monaghan artificial viscosity")
     tensile_correction: TensileCorrection = opt(factory=TensileCorrection, doc="Monaghan tensile correction")
     clamp_negative_pressure: bool = opt(False, "clamp p >= 0 (free-surface flows with summation density)")
+    pressure_gradient: str = opt("symmetric", "pressure gradient: the momentum-conserving symmetric form, or 'corrected': "
+                                              "-(1/rho_a) L_a sum_b V_b (p_b - p_a) grad_a W_ab with the renormalisation "
+                                              "matrix L_a (Bonet & Lok 1999), exact for a linear pressure on any arrangement "
+                                              "(no zeroth-order error from the background pressure on a disordered one; not "
+                                              "momentum-conserving; physics/momentum.py corrected_pressure_gradient)",
+                                 choices=("symmetric", "corrected"))
     tensile_instability_control: bool = opt(False, "delta+-SPH's tensile instability control (Sun et al. 2017): a particle "
                                                    "in tension (p_a < 0) away from the free surface takes the pressure "
                                                    "gradient in the difference form (p_b - p_a), which has no pairwise "
@@ -223,6 +239,11 @@ class ISPH:
                                     "bias, no truncated kernel at a free surface, but it fights the shift next to walls. Experimental: tried "
                                     "on the standing wave; the stretching drop gains energy from its first steps with it and "
                                     "ends non-finite; docs/isph.md)", choices=("summation", "continuity"))
+    divergence: str = opt("plain", "div(v*) of the divergence source: 'plain' -sum_b V_b v_ab . grad_a W_ab over the lattice's "
+                                   "gradient sum, or 'corrected': tr(S_a M_a^-1), S_a = sum_b V_b (v_b - v_a) (x) grad_a W_ab, "
+                                   "exact for a linear velocity on any arrangement, as the corrected pressure gradient "
+                                   "(physics/ppe_terms.py corrected_velocity_divergence; Bonet & Lok 1999)",
+                          choices=("plain", "corrected"))
     ppe: PPE = opt(factory=PPE, doc="PPE solver settings")
     free_surface_threshold: float = opt(0.8, "a particle is free-surface when its kernel sum / lattice kernel sum is below this", positive=True)
     one_sided_ratio: float | None = opt(None, "a surface candidate (kernel sum below 0.97 of the lattice's) is also free-surface when "
@@ -245,6 +266,10 @@ class ISPH:
     shifting_coefficient: float | None = opt(None, "A of the particle shift in ISPH; None = shifting.coefficient (ISPH's corrected "
                                                    "pressure gradient has no pairwise repulsion: shifting is all that re-orders its "
                                                    "particles, and it may need a larger A than WCSPH)", minimum=0.0)
+    shifting_model: str = opt("shared", "shifting.model for ISPH; 'shared' = shifting.model (ISPH's step is ~10x WCSPH's: "
+                                           "with the global speed and A = 4 a shift corrects a particle's offset in about one "
+                                           "step, where A = 20 overshoots into the max_shift cap)",
+                              choices=("shared", "skillen", "sun"))
     wall_clearance: float | None = opt(0.25, "kinematic wall condition: the speed toward a wall face is cut so that no fluid particle "
                                              "comes closer than this to it (fluid starts dx/2 away); holds free-surface films, "
                                              "which have no PPE pressure; None = off", unit="dx", minimum=0.0)
@@ -447,6 +472,12 @@ class Config:
         """(alpha, beta) of the Monaghan viscosity for this run's solver."""
         av = self.wcsph.artificial_viscosity
         return self.for_solver("artificial_viscosity_alpha", av.alpha), av.beta
+
+    @property
+    def shifting_model(self) -> str:
+        """The particle shift's speed model for this run's solver (isph.shifting_model or shifting.model)."""
+        own = self.isph.shifting_model
+        return own if self.solver == "isph" and own != "shared" else self.shifting.model
 
     @property
     def shifting_coefficient(self) -> float:

@@ -101,6 +101,9 @@ def validate(cfg: Config, source: str) -> None:
         raise ConfigError("the tensile instability control tells the free-surface region by the particle shifting's free-surface "
                           "flags: set `shifting.enabled: true` and `shifting.model: sun`, or switch it off",
                           source=source, key="wcsph.tensile_instability_control")
+    if cfg.wcsph.tensile_instability_control and cfg.wcsph.pressure_gradient == "corrected":
+        raise ConfigError("the corrected pressure gradient is already the difference form everywhere: switch the tensile "
+                          "instability control off", source=source, key="wcsph.pressure_gradient")
     if cfg.particles.neighbor_access == "cells" and cfg.solver != "wcsph":
         raise ConfigError("'cells' is for WCSPH only: ISPH assembles its pressure equation from the stored lists; "
                           "use 'lists'", source=source, key="particles.neighbor_access")

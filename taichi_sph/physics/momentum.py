@@ -10,6 +10,8 @@ tensile terms did on the dam break and the rotating square: docs/notes/momentum.
 
 import taichi as ti
 
+from taichi_sph.physics.density import renormalised_gradient
+
 
 @ti.func
 def symmetric_pressure_gradient(m_b: float, p_a: float, rho_a: float, p_b: float, rho_b: float, grad_w):
@@ -36,6 +38,25 @@ def kernel_sum_scaled_pressure(p: float, kernel_sum_ratio: float, floor: float) 
     approximates -grad p / rho, and stays pairwise antisymmetric (momentum-conserving), keeping the p_a term's
     repulsion. s = 1 in the bulk (no change there)."""
     return p / ti.min(ti.max(kernel_sum_ratio, floor), 1.0)
+
+
+@ti.func
+def pressure_difference_pair_terms(vol_b: float, p_a: float, p_b: float, r_ab, grad_w):
+    """One pair's shares of sum_b V_b (p_b - p_a) grad_a W_ab and of the moment matrix
+    M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab (r_ab = x_a - x_b): the two sums of corrected_pressure_gradient."""
+    return vol_b * (p_b - p_a) * grad_w, -vol_b * r_ab.outer_product(grad_w)
+
+
+@ti.func
+def corrected_pressure_gradient(sum_dp, moment, rho_a: float):
+    """-(1/rho_a) <grad p>_a with <grad p>_a = L_a sum_b V_b (p_b - p_a) grad_a W_ab, L_a = (M_a^T)^-1 (the kernel-
+    gradient correction of Bonet & Lok 1999, Randles & Libersky 1996; physics/density.py renormalised_gradient).
+    Exact for a linear pressure on any particle arrangement: neither the background pressure (the difference form)
+    nor a disordered support (L_a) leaves a zeroth- or first-order error, which the symmetric form does (its error
+    ~ p_b times the arrangement's kernel-gradient moments, which do not shrink with dx at a fixed h / dx). Not
+    momentum-conserving. The consistent pressure gradient of Negi & Ramachandran (2021), 'Numerical convergence
+    of SPH', arXiv 2107.11859, which with shifting gives second-order convergence on the Taylor-Green vortex."""
+    return -renormalised_gradient(sum_dp, moment) / rho_a
 
 
 @ti.func
@@ -72,3 +93,21 @@ def morris_laminar_viscosity(m_b: float, nu: float, rho_a: float, rho_b: float, 
     """Morris, Fox & Zhu (1997): m_b (mu_a + mu_b) / (rho_a rho_b) (r_ab . grad W) / (r^2 + eta^2) v_ab, mu = rho nu."""
     coeff = m_b * nu * (rho_a + rho_b) / (rho_a * rho_b) * r_ab.dot(grad_w) / (r2 + eta2)
     return coeff * v_ab
+
+
+@ti.func
+def laplacian_moment_term(vol_b: float, r_ab, r2: float, eta2: float, grad_w) -> float:
+    """One pair's share of m_a = (1/dim) sum_b V_b (-r_ab . grad_a W_ab) r^2 / (r^2 + eta^2), the second moment of the
+    Morris (and Brookshaw / Shao & Lo) Laplacian: on a full lattice scene/lattice.py lattice_gradient_sum, and
+    the Laplacian of a quadratic field is exact times m_a (on any arrangement, for an isotropic quadratic)."""
+    return -vol_b * r_ab.dot(grad_w) * r2 / (r2 + eta2) / ti.static(r_ab.n)
+
+
+@ti.func
+def renormalised_laplacian(sum_lap, moment: float, lattice_moment: float):
+    """The Morris Laplacian sum over the particle's own second moment m_a (laplacian_moment_term) rather than the
+    lattice's: the per-particle normalisation of Brookshaw's Laplacian (as the renormalised gradient is for the
+    gradient; cf. Fatehi & Manzari 2011, whose full correction also removes the first-order term), so that the
+    shifted, disordered arrangement's moment bias, a decay-rate error that does not shrink with dx, is divided
+    out. Where m_a < lattice_moment / 2 (a truncated support) the lattice's stands in."""
+    return sum_lap / ti.select(moment > 0.5 * lattice_moment, moment, lattice_moment)

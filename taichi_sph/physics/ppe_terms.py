@@ -5,6 +5,8 @@ physics/ppe.py)."""
 # No `from __future__ import annotations`: Taichi reads the functions' argument annotations.
 import taichi as ti
 
+from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT
+
 
 @ti.func
 def shao_lo_laplacian_weight(m_b: float, rho_a: float, rho_b: float, r_ab, r2: float, eta2: float, grad_w) -> float:
@@ -18,6 +20,22 @@ def shao_lo_laplacian_weight(m_b: float, rho_a: float, rho_b: float, r_ab, r2: f
 def velocity_divergence_term(vol_b: float, v_ab, grad_w) -> float:
     """One pair's share of div(v)_a = -sum_b V_b v_ab . grad_a W_ab, v_ab = v_a - v_b."""
     return -vol_b * v_ab.dot(grad_w)
+
+
+@ti.func
+def corrected_velocity_divergence(sum_dv, moment) -> float:
+    """div(v)_a = tr(S_a M_a^-1), S_a = sum_b V_b (v_b - v_a) (x) grad_a W_ab, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab
+    (physics/density.py corrected_gradient_pair_terms): the trace of the kernel-gradient-corrected velocity gradient
+    (Bonet & Lok 1999), exact for a linear velocity on any arrangement, as the corrected pressure gradient of the
+    projection; the plain sum is not on a disordered one. M_a near singular (a splash particle): tr(S) / (tr M / dim)."""
+    dim = ti.static(moment.n)
+    scale = moment.trace() / dim
+    div = 0.0
+    if scale > 1e-3:
+        div = sum_dv.trace() / scale
+        if ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT * scale ** dim:
+            div = (sum_dv @ moment.inverse()).trace()
+    return div
 
 
 @ti.func

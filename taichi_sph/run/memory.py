@@ -145,7 +145,7 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
         floats += d
     if f.shifting:
         floats += d
-        ints += cfg.shifting.model == "sun"  # its surface flags
+        ints += cfg.shifting_model == "sun"  # its surface flags
         ints += f.tensile_instability_control  # the free-surface region kept for it
     if cfg.solver == "wcsph":
         floats += (f.density == "continuity") + (f.density_diffusion != "none") + f.dim * (f.density_diffusion == "antuono")

@@ -13,7 +13,7 @@ from taichi_sph.physics.body_force import harmonic_central_force
 from taichi_sph.physics.eos import tait_density, tait_pressure
 from taichi_sph.physics.walls import adami_wall_pressure, adami_wall_velocity
 from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays, tait_b
-from taichi_sph.scene.lattice import lattice_kernel_sum, max_neighbors_for
+from taichi_sph.scene.lattice import lattice_gradient_sum, lattice_kernel_sum, max_neighbors_for
 from taichi_sph.solvers.clock import DeviceClock
 from taichi_sph.solvers.state import CheckpointState
 from taichi_sph.solvers.wall_condition import KinematicWalls
@@ -52,6 +52,12 @@ class SolverBase(KinematicWalls, CheckpointState):
         self.p_background = cfg.fluid.background_pressure
         self.nu = cfg.fluid.nu
         self.eta2 = 0.01 * self.h * self.h
+        # fluid.laplacian: normalised: the Morris viscosity over its lattice sum (1.0 multiplies nothing)
+        self.lap_moment = lattice_gradient_sum(cfg, self.kernel.dw_dr_np, self.eta2)
+        self.visc_norm = 1.0 / self.lap_moment if cfg.fluid.laplacian != "morris" else 1.0
+        self.renormalised_laplacian = cfg.fluid.laplacian == "renormalised" and cfg.solver == "wcsph"
+        if self.renormalised_laplacian:
+            self.visc_norm = 1.0  # the sum is divided by each particle's own moment instead
         self.lattice_volume = self.dx ** cfg.dim
         self.inv_lattice_sum = 1.0 / lattice_kernel_sum(cfg, self.kernel.w_np)
         self.particles = ParticleFields(arrays, cfg.dim)

@@ -22,9 +22,10 @@ import taichi as ti
 
 from taichi_sph.config.schema import Config
 from taichi_sph.linalg.ppe import BB, DIRICHLET, N_UNKNOWN, SUM_B, UNKNOWN, MatrixFreePPE
-from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT
+from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradient_pair_terms
 from taichi_sph.physics.momentum import monaghan_viscosity, morris_laminar_viscosity
 from taichi_sph.physics.ppe_terms import (
+    corrected_velocity_divergence,
     neumann_wall_pressure_difference,
     ppe_source,
     shao_lo_laplacian_weight,
@@ -56,6 +57,7 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
         self.source = ic.source
         self.beta = SOURCE_WEIGHT[ic.source](ic.blend)
         self.compression_only = ic.compression_only
+        self.corrected_divergence = ic.divergence == "corrected"
         self.surface_threshold = ic.free_surface_threshold
         self.one_sided = ic.one_sided_ratio is not None
         self.one_sided_ratio = ic.one_sided_ratio if self.one_sided else 0.0
@@ -129,7 +131,7 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
                                            self.beta_av, grad_w)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
-                sums.acc += morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,
+                sums.acc += self.visc_norm * morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,
                                                      self.eta2, grad_w)
 
     # -- 3. the linear system -----------------------------------------------------------------
@@ -147,11 +149,14 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
                 vol_a = P.mass[a] / self.rho0
                 row = ti.Struct(va=P.v[a], vol_a=vol_a, body=self.body_force(xa), dt=dt, k=0, div_v=0.0, diag=0.0,
                                 diag_dirichlet=0.0, rhs=0.0, moment=ti.Vector.zero(float, self.dim),
-                                near_surface=False)
+                                near_surface=False, sum_dv=ti.Matrix.zero(float, self.dim, self.dim),
+                                m=ti.Matrix.zero(float, self.dim, self.dim))
                 self.nsearch.for_each_neighbor(a, P.x, self.ppe_row_pair, row)
                 diag, diag_dirichlet, rhs, moment = row.diag, row.diag_dirichlet, row.rhs, row.moment
                 near_surface = row.near_surface
                 div_v = row.div_v * self.grad_norm
+                if ti.static(self.corrected_divergence):
+                    div_v = corrected_velocity_divergence(row.sum_dv, row.m)
                 rho = self.rho_summation[a]
                 if ti.static(self.continuity):
                     rho = self.continuity_density.rho[a]
@@ -203,6 +208,10 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
         row.k += 1
         row.moment += k_ab * r_ab
         row.div_v += velocity_divergence_term(P.mass[b] / self.rho0, row.va - v_b, grad_w)
+        if ti.static(self.corrected_divergence):
+            du, dm = corrected_gradient_pair_terms(P.mass[b] / self.rho0, row.va - v_b, r_ab, grad_w)
+            row.sum_dv += du
+            row.m += dm
 
     # -- 5. walls and correction ---------------------------------------------------------------
     @ti.kernel

@@ -20,11 +20,15 @@ from taichi_sph.physics.density import (
     renormalised_gradient,
 )
 from taichi_sph.physics.momentum import (
+    corrected_pressure_gradient,
     difference_pressure_gradient,
     kernel_sum_scaled_pressure,
+    laplacian_moment_term,
     monaghan_tensile_correction,
     monaghan_viscosity,
     morris_laminar_viscosity,
+    pressure_difference_pair_terms,
+    renormalised_laplacian,
     symmetric_pressure_gradient,
 )
 from taichi_sph.scene.bodies import FLUID, ParticleArrays
@@ -36,7 +40,7 @@ from taichi_sph.sph.schedule import LoopSchedule
 
 @ti.data_oriented
 class WCSPHSolver(DeviceResidentLoop, SolverBase):
-    """Tait EOS, symmetric pressure gradient, Monaghan and Morris viscosities, delta-SPH, Adami walls."""
+    """Tait EOS, symmetric (or kernel-gradient-corrected) pressure gradient, Monaghan and Morris viscosities, delta-SPH, Adami walls."""
 
     name = "wcsph"
     wall_wall_pairs = False
@@ -148,9 +152,16 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                     # tensile instability control: both pressure forms summed, one kept (compiled out without it)
                     sums = ti.Struct(va=P.v[a], rho_a=P.rho[a], p_a=p_a, acc=ti.Vector.zero(float, self.dim), drho=0.0,
                                      near_wall=0, acc_tension=ti.Vector.zero(float, self.dim),
-                                     acc_pressure=ti.Vector.zero(float, self.dim), q_a=q_a)
+                                     acc_pressure=ti.Vector.zero(float, self.dim), q_a=q_a,
+                                     sum_dp=ti.Vector.zero(float, self.dim), visc=ti.Vector.zero(float, self.dim),
+                                     lap_m=0.0,
+                                     moment=ti.Matrix.zero(float, self.dim, self.dim))
                     self.nsearch.for_each_neighbor(a, P.x, self.force_pair, sums)
                     acc = sums.acc
+                    if ti.static(self.renormalised_laplacian):
+                        acc += renormalised_laplacian(sums.visc, sums.lap_m, self.lap_moment)
+                    if ti.static(self.features.pressure_gradient == "corrected"):
+                        acc += corrected_pressure_gradient(sums.sum_dp, sums.moment, sums.rho_a)
                     if ti.static(self.features.tensile_instability_control):
                         # Sun et al. 2017: the difference form for p_a < 0 outside the free-surface region
                         in_tension = p_a < 0.0 and self.shifting.surface_region[a] == 0
@@ -177,7 +188,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         # branch-free: an `if` that sets a flag in this loop made the f32 pass 3x slower
         sums.near_wall = ti.max(sums.near_wall, ti.select(is_fluid_b, 0, 1))
         v_ab = sums.va - P.v[b]
-        self.pressure_pair(b, m_b, rho_b, grad_w, sums)
+        self.pressure_pair(b, m_b, rho_b, r_ab, grad_w, sums)
         if ti.static(self.features.tensile_correction):
             self.tensile_correction_pair(b, m_b, rho_b, is_fluid_b, r, grad_w, sums)
         if ti.static(self.features.density_diffusion != "none"):
@@ -192,13 +203,28 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                                            self.alpha, self.beta, grad_w)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
-                sums.acc += morris_laminar_viscosity(m_b, self.nu, sums.rho_a, rho_b, v_visc, r_ab, r2, self.eta2,
-                                                     grad_w)
+                visc = morris_laminar_viscosity(m_b, self.nu, sums.rho_a, rho_b, v_visc, r_ab, r2, self.eta2, grad_w)
+                if ti.static(self.renormalised_laplacian):
+                    sums.visc += visc
+                    sums.lap_m += laplacian_moment_term(m_b / rho_b, r_ab, r2, self.eta2, grad_w)
+                else:
+                    sums.acc += self.visc_norm * visc
 
     @ti.func
-    def pressure_pair(self, b, m_b, rho_b, grad_w, sums: ti.template()):
-        """The symmetric pressure gradient, or (tensile instability control) both forms summed apart."""
+    def pressure_pair(self, b, m_b, rho_b, r_ab, grad_w, sums: ti.template()):
+        """The symmetric pressure gradient, (tensile instability control) both forms summed apart, or (corrected)
+        the sums of the corrected gradient, which the force pass applies."""
         p_b = self.particles.p[b]
+        if ti.static(self.features.pressure_gradient == "corrected"):
+            dp, dm = pressure_difference_pair_terms(m_b / rho_b, sums.p_a, p_b, r_ab, grad_w)
+            sums.sum_dp += dp
+            sums.moment += dm
+        else:
+            self.symmetric_pressure_pair(b, m_b, rho_b, p_b, grad_w, sums)
+
+    @ti.func
+    def symmetric_pressure_pair(self, b, m_b, rho_b, p_b, grad_w, sums: ti.template()):
+        """The symmetric pressure gradient, or (tensile instability control) both forms summed apart."""
         q_b = p_b  # the pressure the symmetric form takes (kernel_sum_scaled: q = p / (S / S_lattice))
         if ti.static(self.features.surface_scaled_pressure):
             q_b = self.q_pressure[b]

@@ -23,17 +23,20 @@ class Features:
     gravity: bool
     central_force: bool
     laminar_viscosity: bool
+    laplacian: str                # morris | normalised | renormalised (the laminar viscosity's)
     artificial_viscosity: bool
     density: str                  # continuity | summation (WCSPH); ISPH always uses summation for its source
     density_diffusion: str        # none | molteni | fourtakas | antuono
     tensile_correction: bool
     tensile_instability_control: bool  # Sun et al. 2017's difference form in tension (WCSPH)
     surface_scaled_pressure: bool      # p / (S / S_lattice) in the symmetric pressure gradient (WCSPH)
+    pressure_gradient: str        # symmetric | corrected (WCSPH; ISPH's is always corrected)
     integrator: str
     periodic: tuple[bool, ...]
     reflecting: bool
     shifting: bool
     shifting_model: str           # skillen | sun (solvers/shifting.py)
+    shifting_correction: bool     # Taylor correction of v (and continuity rho) after the shift
     clamp_negative_pressure: bool
 
     @classmethod
@@ -60,17 +63,20 @@ class Features:
             gravity=cfg.has_gravity,
             central_force=cfg.central_force.omega > 0.0,
             laminar_viscosity=cfg.fluid.nu > 0.0,
+            laplacian=cfg.fluid.laplacian,
             artificial_viscosity=(alpha > 0.0 or beta > 0.0),
             density=wc.density if cfg.solver == "wcsph" else "summation",
             density_diffusion=diffusion,
             tensile_correction=cfg.solver == "wcsph" and wc.tensile_correction.enabled,
             tensile_instability_control=cfg.solver == "wcsph" and wc.tensile_instability_control,
             surface_scaled_pressure=cfg.solver == "wcsph" and wc.surface_pressure_gradient == "kernel_sum_scaled",
+            pressure_gradient=wc.pressure_gradient if cfg.solver == "wcsph" else "corrected",
             integrator=wc.integrator if cfg.solver == "wcsph" else "symplectic_euler",
             periodic=tuple(cfg.periodic),
             reflecting=cfg.reflecting.enabled,
             shifting=cfg.shifting_enabled,
-            shifting_model=cfg.shifting.model,
+            shifting_model=cfg.shifting_model,
+            shifting_correction=cfg.shifting_enabled and cfg.shifting.velocity_correction,
             clamp_negative_pressure=cfg.solver == "wcsph" and wc.clamp_negative_pressure,
         )
 
@@ -80,7 +86,7 @@ class Features:
         if self.wide != "f64":
             terms.append(f"clock_and_stopping_test:{self.wide}")
         if self.solver == "wcsph":
-            terms += ["tait_eos", "symmetric_pressure_gradient", f"density:{self.density}", f"integrator:{self.integrator}"]
+            terms += ["tait_eos", f"{self.pressure_gradient}_pressure_gradient", f"density:{self.density}", f"integrator:{self.integrator}"]
             if self.density_diffusion != "none":
                 terms.append(f"density_diffusion:{self.density_diffusion}")
             if self.tensile_correction:
@@ -92,7 +98,7 @@ class Features:
         if self.artificial_viscosity:
             terms.append("monaghan_artificial_viscosity")
         if self.laminar_viscosity:
-            terms.append("morris_laminar_viscosity")
+            terms.append("morris_laminar_viscosity" + ("" if self.laplacian == "morris" else f":{self.laplacian}"))
         if self.gravity:
             terms.append("body_force")
         if self.central_force:
@@ -105,6 +111,8 @@ class Features:
             terms.append("reflecting_faces")
         if self.shifting:
             terms.append(f"particle_shifting:{self.shifting_model}")
+            if self.shifting_correction:
+                terms.append("shifting_taylor_correction")
         if self.clamp_negative_pressure:
             terms.append("clamp_negative_pressure")
         return terms
