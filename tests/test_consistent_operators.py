@@ -114,7 +114,8 @@ def test_corrected_divergence_is_exact_for_a_linear_velocity_on_a_disordered_sup
     assert abs(plain - np.trace(G)) > 0.05 * abs(np.trace(G))
 
 
-@pytest.mark.parametrize("laplacian", ["normalised", "renormalised", "morris"])
+@pytest.mark.parametrize("laplacian", ["normalised", pytest.param("renormalised", marks=pytest.mark.slow),
+                                       pytest.param("morris", marks=pytest.mark.slow)])
 def test_normalised_laplacian_is_exact_for_a_quadratic_velocity_on_the_lattice(laplacian):
     """v = (y^2, 0) on the lattice, uniform p and rho: the viscous acceleration is nu lap v = (2 nu, 0). Normalised:
     within 0.1% (f32), and so is the renormalised form (each particle's moment is the lattice's here); Morris's

@@ -41,6 +41,7 @@ def test_rebased_clock_stops_past_t_stop_and_lands_on_t_end():
     assert s.t == t_end
 
 
+@pytest.mark.slow
 def test_wcsph_f32_clock_runs_the_f64_clocks_flow():
     """200 steps in batches bounded by output times, one launch a step (the GPU's schedule; the one-thread batch
     kernel runs the rebased clock in the test above): the same step count, t within f32 rounding of the call
@@ -64,6 +65,7 @@ def test_wcsph_f32_clock_runs_the_f64_clocks_flow():
     assert np.abs(sa["v"]).max() > 0.1  # the column moved
 
 
+@pytest.mark.slow
 def test_isph_f32_stopping_test_solves_as_the_f64_one():
     """The ISPH tank (CG, from p = 0) with the stopping test in f32: ok, the hydrostatic pressure as accurate, the
     same iteration counts within one, and the end pressure within 1e-4 of rho0 g H of the f64 run's."""

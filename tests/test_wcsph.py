@@ -357,6 +357,7 @@ def test_kernel_sum_scaled_pressure_acts_only_in_the_surface_band():
     assert np.all(ratio[(y > 0.4 - 2 * dx) & ~top] > 1.05)  # the second row: 1.078
 
 
+@pytest.mark.slow
 def test_kernel_sum_scaled_pressure_lowers_the_small_tank_error(tmp_path):
     """The small tank of test_hydrostatic_small_tank_pressure with the surface-band pressure scaled: the top rows'
     overpressure (the symmetric form balances grad(p S), not grad p, where the surface cuts the kernel) shrinks.
