@@ -3,7 +3,7 @@ them: solvers/shifting.py."""
 
 import taichi as ti
 
-from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT
+from taichi_sph.physics.density import renormalised_gradient
 
 
 @ti.func
@@ -34,16 +34,10 @@ def no_outward_part(dr, outward):
 @ti.func
 def renormalised_displacement(moment, dr):
     """M_a^-1 dr, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab, with renormalised_gradient's conditioning rule (tr M / dim
-    in its place where M is near singular). The Taylor correction of any field f after a shift dr is then
-    <grad f>_a . dr = sum_b V_b (f_b - f_a) grad_a W_ab . (M_a^-1 dr): one solve serves every field."""
-    dim = ti.static(moment.n)
-    scale = moment.trace() / dim
-    y = ti.Vector.zero(float, dim)
-    if scale > 1e-3:
-        y = dr / scale
-        if ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT * scale ** dim:
-            y = moment.inverse() @ dr
-    return y
+    in its place where M is near singular): renormalised_gradient of dr with M^T, as ((M^T)^T)^-1 = M^-1. The Taylor
+    correction of any field f after a shift dr is then <grad f>_a . dr = sum_b V_b (f_b - f_a) grad_a W_ab .
+    (M_a^-1 dr): one solve serves every field."""
+    return renormalised_gradient(dr, moment.transpose())
 
 
 @ti.func

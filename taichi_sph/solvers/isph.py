@@ -23,7 +23,7 @@ import taichi as ti
 from taichi_sph.config.schema import Config
 from taichi_sph.linalg.ppe import BB, DIRICHLET, N_UNKNOWN, SUM_B, UNKNOWN, MatrixFreePPE
 from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradient_pair_terms
-from taichi_sph.physics.momentum import monaghan_viscosity, morris_laminar_viscosity
+from taichi_sph.physics.momentum import monaghan_viscosity, morris_laminar_viscosity, pressure_difference_pair_terms
 from taichi_sph.physics.ppe_terms import (
     corrected_velocity_divergence,
     neumann_wall_pressure_difference,
@@ -274,9 +274,9 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
         P = self.particles
         if P.kind[b] == FLUID or P.p[b] > self.p_background:
             grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
-            vol_b = P.mass[b] / self.rho0
-            sums.sum_dp += vol_b * (P.p[b] - sums.p_a) * grad_w
-            sums.moment -= vol_b * r_ab.outer_product(grad_w)
+            dp, dm = pressure_difference_pair_terms(P.mass[b] / self.rho0, sums.p_a, P.p[b], r_ab, grad_w)
+            sums.sum_dp += dp
+            sums.moment += dm
 
     # -- one step -------------------------------------------------------------------------------------
     def prepare(self) -> None:
