@@ -53,11 +53,9 @@ SLOW = {
     # the wave with ISPH's defaults over 3 periods (the two short unstable set-ups stay default)
     "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods": "~35 s quiet, 70 s loaded: to t = 5",
     "test_standing_wave.py::test_wcsph_defaults_keep_the_wave_for_three_periods": "~70 s quiet, 134 s loaded: to t = 5",
-    # three of the five kill moments (the other two, rows 13 and 20, and the SIGINT one stay in the default
-    # set): each is a dam-break child process killed, then resumed in-process, ~23 s; the first one in the
-    # module also runs the uninterrupted reference (83 s)
+    # the three kill moments: each is a dam-break child process killed, then resumed in-process, ~23 s; the
+    # first one in the module also runs the uninterrupted reference (83 s)
     "test_resume.py::test_killed_run_resumes_to_the_uninterrupted_state[6]": "~23-83 s, a kill moment",
-    "test_resume.py::test_killed_run_resumes_to_the_uninterrupted_state[28]": "~23 s, a kill moment",
     "test_resume.py::test_killed_run_resumes_to_the_uninterrupted_state[36]": "~23 s, a kill moment",
     "test_resume.py::test_isph_interrupted_run_resumes_within_the_run_to_run_spread": "62 s: ISPH runs to t = 0.5",
     # the pair of patches at the scene's dx 0.02 to t = 0.5 s (the coarse rotating-square runs stay default)
@@ -82,12 +80,10 @@ SLOW = {
     "test_multigrid.py::test_mgcg_on_a_periodic_box": "180 s",
     "test_executor.py::test_pool_gives_the_same_errors_as_one_process": "143 s",
     "test_run_render.py::test_dam_break_renders_frames_and_video[dam_break_3d.yaml-0.06-0.04-4]": "118 s",
-    "test_resume.py::test_killed_run_resumes_to_the_uninterrupted_state[13]": "117 s",
     "test_run_safety.py::test_disk_full_in_a_snapshot_fails_cleanly_and_resume_continues": "108 s",
     "test_validation.py::test_cavity_coarse_run_approaches_ghia": "108 s",
     "test_particle_order.py::test_a_hole_in_a_lattice_is_a_void_and_only_its_rim_is_flagged[3]": "93 s",
     "test_validation.py::test_poiseuille_coarse_start_up_follows_the_series": "91 s",
-    "test_particle_order.py::test_a_full_lattice_has_no_void_and_a_surface_band[3]": "89 s",
     "test_ppe_loop.py::test_runs_do_not_depend_on_check_every[mgcg]": "84 s",
     "test_multigrid.py::test_ppe_loop_schedules_give_bit_identical_runs[mgcg]": "81 s",
     "test_wcsph.py::test_kinematic_wall_condition_keeps_an_impact_inside_the_box": "80 s",
@@ -128,7 +124,6 @@ SLOW = {
     "test_preflight.py::test_force_runs_a_refused_setup": "46 s",
     "test_multigrid.py::test_mgcg_in_1d_and_3d[column_1d.yaml]": "46 s",
     "test_ppe_loop.py::test_jacobi_stops_on_the_iteration_and_does_not_depend_on_check_every": "44 s",
-    "test_compare.py::test_sweep_tiny_two_resolutions": "43 s",
     "test_wcsph.py::test_too_large_fixed_dt_is_caught_as_unstable": "41 s",
     # and the longest of the default set that was left (a second profile, 556 tests in 10:46 under load 3-4)
     "test_view.py::test_realtime_view_writes_the_rtf_and_frame_rate": "50 s: Xvfb, a measurement and a paced run",

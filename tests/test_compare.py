@@ -1,8 +1,6 @@
 """compare.py and sweep.py: report logic on synthetic data, then two tiny real batches."""
 
-import csv
 import json
-import math
 
 import imageio.v3 as iio
 import numpy as np
@@ -12,7 +10,7 @@ from taichi_sph.config.loader import bundled_configs_dir, load_config
 from taichi_sph.render.side_by_side import side_by_side_frames
 from taichi_sph.scene.bodies import FLUID, WALL
 from taichi_sph.studies import compare as cmp
-from taichi_sph.studies.sweep import convergence_order, default_dx_values, parse_dx_list, sweep
+from taichi_sph.studies.sweep import convergence_order, default_dx_values, parse_dx_list
 
 TANK = bundled_configs_dir() / "stability" / "tank.yaml"
 # 10 x 10 fluid particles, 20 output rows of a few steps each: seconds per run
@@ -139,18 +137,3 @@ def test_compare_tiny_writes_the_report(tmp_path):
     md = (tmp_path / "comparison.md").read_text()
     assert "| wall time [s] |" in md and "**Verdict:**" in md
     assert result["reason"] == data["reason"]
-
-
-def test_sweep_tiny_two_resolutions(tmp_path):
-    cfg = load_config(TANK, TINY)
-    result = sweep(cfg, [0.05, 0.04], ["wcsph"], tmp_path, log=lambda m: None)
-    with open(tmp_path / "sweep.csv") as f:
-        rows = list(csv.DictReader(f))
-    assert [r["dx"] for r in rows] == ["0.05", "0.04"]
-    assert {"solver", "n_particles", "wall_time_s", "steps", "status", "pressure_l2_rel"} <= set(rows[0])
-    assert all(r["status"] == "ok" for r in rows) and int(rows[1]["n_particles"]) > int(rows[0]["n_particles"])
-    order = json.loads((tmp_path / "sweep.json").read_text())["order"]["wcsph"]["pressure_l2_rel"]
-    assert order is not None and math.isfinite(order)
-    assert result["order"]["wcsph"]["pressure_l2_rel"] == order
-    assert (tmp_path / "error_vs_time.png").stat().st_size > 1000
-    assert "Observed convergence order" in (tmp_path / "sweep.md").read_text()

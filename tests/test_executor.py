@@ -2,6 +2,7 @@
 
 import csv
 import json
+import math
 import sys
 
 import pytest
@@ -27,8 +28,19 @@ def _csv_without_timings(path):
 
 
 def test_pool_gives_the_same_errors_as_one_process(tmp_path):
+    """The sweep in this process (its report: sweep.csv, the observed order, the error-vs-time plot), then the
+    same on a pool of two processes: the same errors to the last digit."""
     cfg = load_config(TANK, TINY)
     serial = sweep(cfg, DXS, ["wcsph"], tmp_path / "serial", log=lambda m: None, dispatch=ex.Dispatch(jobs=1))
+    with open(tmp_path / "serial" / "sweep.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [r["dx"] for r in rows] == ["0.05", "0.04"]
+    assert {"solver", "n_particles", "wall_time_s", "steps", "status", "pressure_l2_rel"} <= set(rows[0])
+    assert all(r["status"] == "ok" for r in rows) and int(rows[1]["n_particles"]) > int(rows[0]["n_particles"])
+    order = json.loads((tmp_path / "serial" / "sweep.json").read_text())["order"]["wcsph"]["pressure_l2_rel"]
+    assert order is not None and math.isfinite(order) and serial["order"]["wcsph"]["pressure_l2_rel"] == order
+    assert (tmp_path / "serial" / "error_vs_time.png").stat().st_size > 1000
+    assert "Observed convergence order" in (tmp_path / "serial" / "sweep.md").read_text()
     pooled = sweep(cfg, DXS, ["wcsph"], tmp_path / "pool", log=lambda m: None, dispatch=ex.Dispatch(jobs=2))
     assert [r["status"] for r in pooled["runs"]] == ["ok", "ok"]
     assert [r["errors"] for r in pooled["runs"]] == [r["errors"] for r in serial["runs"]]  # to the last digit

@@ -1,4 +1,4 @@
-"""Checkpoints and `taichi-sph resume`: a dam_break_2d run killed (SIGKILL) at five moments and one
+"""Checkpoints and `taichi-sph resume`: a dam_break_2d run killed (SIGKILL) at three moments and one
 interrupted (SIGINT, exit 130) resume to the same final state as an uninterrupted run, bit for bit on the
 CPU, with the same timeseries.csv (each output time once) and the same snapshots; the run folder says
 `running` while a run goes on; bad resumes and re-runs into a used folder are refused with one line.
@@ -85,7 +85,7 @@ def assert_same_run(reference: Path, out: Path) -> None:
     assert not (out / (CHECKPOINT_NAME + ".tmp")).exists()
 
 
-@pytest.mark.parametrize("rows", [6, 13, 20, 28, 36])
+@pytest.mark.parametrize("rows", [6, 20, 36])
 def test_killed_run_resumes_to_the_uninterrupted_state(capsys, reference, tmp_path, rows):
     out = tmp_path / "run"
     assert stop_after(out, rows, signal.SIGKILL) == -signal.SIGKILL
