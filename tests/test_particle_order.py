@@ -71,7 +71,9 @@ def test_a_hole_in_a_lattice_is_a_void_and_only_its_rim_is_flagged(dim):
     assert np.isclose(row["min_pair_distance_dx"], 1.0, atol=1e-4) and row["min_wall_distance_dx"] is None
 
 
-@pytest.mark.parametrize("dim", [2])  # 3D: the hole test's outer surface (a 3D solver compile is ~90 s)
+# 3D left out for CI time (a 3D solver compile, ~90 s): the 3D hole test checks that the outer surface is flagged,
+# not that the interior is left unflagged (its 14-site lattice has no particle beyond the support from both surfaces)
+@pytest.mark.parametrize("dim", [2])
 def test_a_full_lattice_has_no_void_and_a_surface_band(dim):
     cfg = _cfg(dim)
     x = lattice_box((0.0,) * dim, (CELLS[dim] * DX,) * dim, DX)
