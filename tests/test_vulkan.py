@@ -179,6 +179,46 @@ def test_the_float64_probe_runs_on_the_device():
     assert device_has_float64()
 
 
+def test_wide_fields_keep_their_own_slots_on_the_device():
+    """taichi-dev/taichi#8803: in one SNode tree, an f64 field placed after a 4-byte field of odd length is
+    addressed one slot low on the SPIR-V backends. `wide_fields` gives the 64-bit fields a tree of their own: each
+    value written comes back, the i32 neighbour's included (on Taichi 1.7.4 + lavapipe the same layout in one
+    tree reads the i32's last element back as the f64's low word)."""
+    import taichi as ti
+
+    from taichi_sph.sph.precision import wide_fields
+
+    runtime(DEVICE)
+    flags = ti.field(ti.i32, 3)  # 12 bytes: the next field of the same tree would sit at 4 mod 8
+    scalar, array = wide_fields(ti.f64, (), 3)
+    after = ti.field(ti.i32, ())
+
+    @ti.kernel
+    def write():
+        for k in range(3):
+            flags[k] = 7 + k
+            array[k] = ti.cast(1.0, ti.f64) + ti.cast(k, ti.f64) * ti.cast(1e-12, ti.f64)
+        scalar[None] = ti.cast(2.0, ti.f64) + ti.cast(1e-12, ti.f64)
+        after[None] = 5
+
+    write()
+    assert flags.to_numpy().tolist() == [7, 8, 9] and after[None] == 5
+    assert scalar[None] == 2.0 + 1e-12
+    assert array.to_numpy().tolist() == [1.0 + k * 1e-12 for k in range(3)]
+
+
+def test_f64_particle_fields_are_refused_on_the_device():
+    """`precision: f64` on a SPIR-V device would place f64 particle fields next to i32 ones of odd length in one
+    tree (taichi-dev/taichi#8803): refused with its cause and the fix, before a step runs."""
+    from taichi_sph.errors import SPHError
+
+    reset()
+    init_taichi(DEVICE, "f64")
+    cfg = scene(2, "wcsph", "lists", "precision=f64")
+    with pytest.raises(SPHError, match="precision: f64 on .*8803.*precision: f32"):
+        make_solver(cfg, build_particles(cfg))
+
+
 # ----------------------------------------------------------------------------- the PPE's stopping flag
 def test_ppe_stopping_flag_on_the_device():
     """On the system of a real step, for each PPE solver from p = 0: the device-side test stops the solve below

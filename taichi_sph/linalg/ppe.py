@@ -45,6 +45,7 @@ from taichi_sph.linalg.ppe_slots import (
     UNKNOWN,
 )
 from taichi_sph.linalg.reduction import RowSums
+from taichi_sph.sph.precision import wide_fields
 from taichi_sph.sph.schedule import fixed_schedule
 
 # the roles and slots the callers fill the system with (solvers/isph.py), from ppe_slots.py
@@ -103,7 +104,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         self.scalars = ti.field(float, 11)
         # the solve's state on the device (slots DONE ... STARTING), in f64 where the device has it
         self.wide = wide
-        self.progress = ti.field(wide, 9)
+        self.progress, = wide_fields(wide, 9)  # a tree of its own (sph/precision.py: Vulkan's f64 packing)
         self.limits_sent = [math.nan, math.nan]  # (tolerance, max_iterations) as last written to `progress`
         self.last_iterations = 0  # the last solve's iteration count (`first_batch`)
         self.sums = RowSums(n, self.scalars, 3)  # every reduction over the particles (fixed order on the CPU)

@@ -23,6 +23,8 @@ import math
 import numpy as np
 import taichi as ti
 
+from taichi_sph.sph.precision import wide_fields
+
 # what limited the step (the host-side `choose_dt` names)
 DT_LIMITS = ("cfl", "force", "viscous", "dt_max", "fixed")
 
@@ -51,16 +53,13 @@ class DeviceClock:
         self.capacity = int(capacity)
         self.wide = wide
         self.rebased = wide != ti.f64
-        self.t = ti.field(wide, ())
-        self.dt = ti.field(wide, ())
-        self.t_stop = ti.field(wide, ())
-        self.t_end = ti.field(wide, ())
+        # the wide fields in a tree of their own (sph/precision.py wide_fields: Vulkan's packing of f64 fields)
+        self.t, self.dt, self.t_stop, self.t_end, self.dts = wide_fields(wide, (), (), (), (), self.capacity)
         self.t_base = ti.field(float, ()) if self.rebased else None  # the call's start (body-force ramp)
         self.live = ti.field(ti.i32, ())
         self.done = ti.field(ti.i32, ())
         self.limit = ti.field(ti.i32, ())
         self.builds = ti.field(ti.i32, ())
-        self.dts = ti.field(wide, self.capacity)
         self.live[None] = 1
         self.host_t = 0.0         # the host's f64 t at the call's start (rebased: t_base)
         # the bounds last sent (lists, so that a SolverMemento restores them with the fields): as the host
