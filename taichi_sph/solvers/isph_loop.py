@@ -34,6 +34,10 @@ STATE_CLOCK = 9  # the exported state: the PPE's 9 progress slots, then t, dt, l
 class ISPHDeviceLoop:
     """A mixin of ISPHSolver: `device_step`, the step with dt and t kept on the device (module doc)."""
 
+    # constants written at construction and scratch rewritten every step: not checkpointed, so a checkpoint
+    # written before the loop existed resumes (run/checkpoint.py), and one written with it is the same state
+    transient_state = ("dt_constants", "dt_free_field", "state_host")
+
     def init_device_loop(self) -> None:
         """The dt rule's constants in an f64 tree of their own, the uncut dt, and the export buffer; the device
         path needs an f64 clock (`step_loop` says which path runs)."""

@@ -39,7 +39,10 @@ class CheckpointState:
         def walk(obj, prefix: str) -> None:
             seen.add(id(obj))
             values = {}
+            transient = getattr(obj, "transient_state", ())  # rewritten before each use: not state
             for name, value in vars(obj).items():
+                if name in transient:
+                    continue
                 key = f"{prefix}.{name}"
                 if isinstance(value, ti.Field):
                     fields[key] = value
