@@ -166,8 +166,8 @@ class ISPHDeviceLoop:
         return self.state_host
 
     def compile_device_step(self) -> None:
-        """Compile the loop's kernels now (in `prepare`), not inside the first steps: an empty launch of each
-        is not possible, so the ones without side effects on the state are launched once."""
+        """Compile the export kernel now (in `prepare`: it changes no state); the step's kernels compile in the
+        first step, as the host path's do (each launch of them is a step)."""
         self.export_solve_state(self.state_host)
 
     def sync_clock(self, t_end: float) -> None:
