@@ -80,7 +80,8 @@ def launched(its: list[int], previous: list[int], k: int) -> tuple[int, int]:
 
 @pytest.mark.parametrize("k", [1, 4])
 def test_host_traffic_per_step(k):
-    """An mgcg step: one read-back for the step's stats and one per batch of iterations: the first batch as many
+    """An mgcg step: one read-back per batch of iterations (the last one also carries the step's dt and t:
+    solvers/isph_loop.py; before, one more for the step's stats): the first batch as many
     as the last solve took (at least k), then k at a time; launches: the step's passes, a few for the solve's start
     and end, and per iteration launched three kernels (one on a GPU). (Before the device-side test every iteration
     was read back, and on the thread pool the V-cycle took a launch per cell-level pass; before the first batch
@@ -94,10 +95,10 @@ def test_host_traffic_per_step(k):
     its = solver.iterations[3:]
     batches, iterations = launched(its, solver.iterations[2:-1], k)
     assert min(its) > 3
-    assert traffic.readbacks == 10 + batches
+    assert traffic.readbacks == batches
     assert traffic.launches <= 10 * 22 + 3 * iterations  # measured: 10 * 20 + 3 x the iterations launched
     if k == 4:
-        assert traffic.readbacks / 10 <= 3
+        assert traffic.readbacks / 10 <= 2
 
 
 @pytest.mark.parametrize("serial", [True, False])

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from test_cli import assert_user_error, cli
 
-from taichi_sph.run.checkpoint import CHECKPOINT_NAME, PREVIOUS_NAME, read_checkpoint
+from taichi_sph.run.checkpoint import CHECKPOINT_NAME, PREVIOUS_NAME, read_checkpoint, write_checkpoint
 from taichi_sph.run.output import load_snapshot, read_timeseries
 
 REPO = Path(__file__).resolve().parent.parent
@@ -169,7 +169,22 @@ BAD_RESUMES = {
                                        (d / PREVIOUS_NAME).write_bytes(b"PK\x03\x04 no")),
                             [], ["checkpoint.npz: unreadable checkpoint", "the previous one too"]),
     "not_a_run_folder": (lambda d: (d / "summary.json").unlink(), [], ["not a run folder (no summary.json"]),
+    "checkpoint_without_a_solver_field": (lambda d: (set_status(d, "running"), drop_array(d / CHECKPOINT_NAME,
+                                                                                           "solver.particles.x")),
+                                          [], ["the checkpoint does not fit this solver",
+                                                        "solver.particles.x"]),
 }
+
+
+def drop_array(path: Path, key: str) -> None:
+    """Rewrite a checkpoint without one of its arrays (one written by another version or solver)."""
+    arrays, meta = read_checkpoint(path)
+    del arrays[key]
+    tmp = path.with_name("spoilt")
+    tmp.mkdir()
+    write_checkpoint(tmp / path.name, {}, arrays, meta)
+    (tmp / path.name).replace(path)
+    tmp.rmdir()
 
 
 @pytest.mark.parametrize("name", list(BAD_RESUMES))

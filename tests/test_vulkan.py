@@ -100,7 +100,8 @@ def run_on(arch: str, cfg, t_end: float) -> dict:
     solver.prepare()
     solver.advance(10_000, math.inf, t_end)
     return {"state": by_id(solver.host_state()), "steps": solver.step_count, "t": solver.t,
-            "iterations": list(getattr(solver, "iterations", [])), "dx": cfg.particles.dx, "rho0": cfg.fluid.rho0}
+            "iterations": list(getattr(solver, "iterations", [])), "dx": cfg.particles.dx, "rho0": cfg.fluid.rho0,
+            "step_loop": getattr(solver, "step_loop", "device")}
 
 
 def drift(cpu: dict, dev: dict) -> dict[str, float]:
@@ -135,8 +136,8 @@ def test_a_short_run_matches_the_cpu(solver, dim, access, extra):
     """The same scene to the same t on the CPU and on the device: the same number of steps, the same t, the same
     PPE iterations within one, and every field within f32 drift. WCSPH covers the device-resident step loop
     (one launch per step, the neighbour build gated inside it, parallel schedule), ISPH the parallel PPE loops,
-    the atomic reductions, the device-side stopping test, and mgcg's one-kernel iteration with the GPU's
-    one-thread level threshold."""
+    the atomic reductions, the device-side stopping test, mgcg's one-kernel iteration with the GPU's
+    one-thread level threshold, and its dt and t on the device (solvers/isph_loop.py)."""
     cfg = scene(dim, solver, access, *extra)
     t_end = T_END[(solver, dim)]
     cpu = run_on("cpu", cfg, t_end)
@@ -144,6 +145,7 @@ def test_a_short_run_matches_the_cpu(solver, dim, access, extra):
     assert dev["steps"] == cpu["steps"] >= 6
     assert dev["t"] == pytest.approx(t_end, abs=1e-9) and cpu["t"] == pytest.approx(t_end, abs=1e-9)
     if solver == "isph":
+        assert dev["step_loop"] == cpu["step_loop"] == "device"  # ISPH's dt and t on the device (isph_loop.py)
         assert len(dev["iterations"]) == len(cpu["iterations"])
         assert all(abs(a - b) <= 1 for a, b in zip(cpu["iterations"], dev["iterations"])), (cpu["iterations"],
                                                                                              dev["iterations"])

@@ -113,6 +113,9 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         self.on_cpu = ti.lang.impl.current_cfg().arch in (ti.x64, ti.arm64)
         self.serial: bool | None = fixed_schedule() if self.on_cpu else False
         self.schedule_timings: dict[str, float] = {}
+        # the read-back of the solve's state: progress.to_numpy(), or a caller's that also carries its own state
+        # (ISPH's device loop: progress, then its clock) in the same transfer
+        self.read_state = self.progress.to_numpy
 
     @ti.func
     def apply(self, x: ti.template(), a):
@@ -236,7 +239,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
             else:
                 for _ in range(batch):
                     iterate(self.serial)
-            state = self.progress.to_numpy()
+            state = self.read_state()
             if state[DONE] > 0.0:
                 break
             batch = self.check_every

@@ -19,7 +19,7 @@ import numpy as np
 
 from taichi_sph.config.loader import to_dict
 from taichi_sph.config.schema import Config
-from taichi_sph.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, RenderUnavailable
+from taichi_sph.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, RenderUnavailable, UsageError
 from taichi_sph.run.checks import a_priori_checks
 from taichi_sph.run.disk import is_no_space, no_space_failure
 from taichi_sph.run.energy_watch import ENERGY_COLUMNS, EnergyWatch
@@ -112,12 +112,18 @@ class Simulation:
         self.order_probe = OrderProbe(solver)
         # a checkpoint written before the particle-order diagnostics has no log: start one
         self.order_log = ParticleOrderLog(**(resume.meta.get("particle_order") or {}) if resume is not None else {})
+        if resume is not None and solver.missing_state(resume.arrays):  # before the run folder is touched
+            raise UsageError(f"the checkpoint does not fit this solver ({solver.missing_state(resume.arrays)}); "
+                             "--overwrite starts afresh")
         folder, loop = self._run_folder(resume)
         self.log(f"{cfg.name}: {solver.name}, dim {cfg.dim}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles, "
                  f"dx {cfg.particles.dx:g}, h {cfg.h:.4g}, c0 {solver.c0:.4g} m/s, arch {current_arch_name()}")
         solver.prepare()
         if resume is not None:
-            solver.restore_state(resume.arrays, resume.meta["solver_plain"])
+            try:
+                solver.restore_state(resume.arrays, resume.meta["solver_plain"])
+            except ValueError as e:  # a field of another shape
+                raise UsageError(f"the checkpoint does not fit this solver ({e}); --overwrite starts afresh") from None
             loop.resumed_at.append(solver.t)
             self.log(f"resumed from the checkpoint at t = {solver.t:.6g} s, step {solver.step_count}")
         every = cfg.checkpoint_interval

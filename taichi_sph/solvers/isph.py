@@ -36,6 +36,7 @@ from taichi_sph.scene.lattice import lattice_gradient_sum, lattice_kernel_sum
 from taichi_sph.solvers.base import SolverBase
 from taichi_sph.solvers.isph_continuity import ContinuityDensity
 from taichi_sph.solvers.isph_free_surface import FreeSurfaceDetection
+from taichi_sph.solvers.isph_loop import ISPHDeviceLoop
 from taichi_sph.solvers.isph_report import ppe_summary
 from taichi_sph.solvers.shifting import ParticleShifting
 
@@ -44,7 +45,7 @@ SOURCE_WEIGHT = {"divergence": lambda blend: 0.0, "density_invariance": lambda b
 
 
 @ti.data_oriented
-class ISPHSolver(FreeSurfaceDetection, SolverBase):
+class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
     """Projection ISPH: Shao & Lo Laplacian, matrix-free Jacobi / PCG, free-surface Dirichlet, Neumann walls."""
 
     name = "isph"
@@ -91,10 +92,17 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
         # largest predictor acceleration |g + viscous| of the last step: the force limit of `isph.step_force: explicit`
         self.explicit_step_force = ic.step_force == "explicit"
         self.explicit_acc = ti.field(float, shape=())
+        self.init_device_loop()  # dt and t on the device (solvers/isph_loop.py)
+        if self.step_loop == "device":
+            self.ppe.read_state = self.read_solve_state
 
     # -- 2. predictor -----------------------------------------------------------------------
     @ti.kernel
     def predict_velocity(self, dt: float):
+        self.predict_velocity_pass(dt)
+
+    @ti.func
+    def predict_velocity_pass(self, dt):
         """a* = g + viscous (Morris laminar, Monaghan artificial); v* = v + dt a*. acc keeps a* until the
         correction adds the pressure part. Walls enter as in WCSPH: ghost velocity when no-slip.
         With `isph.step_force: explicit` also max |a*| (explicit_acc, the next step's force limit)."""
@@ -137,6 +145,10 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
     # -- 3. the linear system -----------------------------------------------------------------
     @ti.kernel
     def assemble_ppe(self, dt: float, dt_relax: float):
+        self.assemble_ppe_pass(dt, dt_relax)
+
+    @ti.func
+    def assemble_ppe_pass(self, dt, dt_relax):
         """Coefficients, diagonal and right side of the unknown particles' rows (see the module doc)."""
         P = self.particles
         E = self.ppe
@@ -234,6 +246,10 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
 
     @ti.kernel
     def correct_and_move(self, dt: float):
+        self.correct_and_move_pass(dt)
+
+    @ti.func
+    def correct_and_move_pass(self, dt):
         """v = v* - dt grad p / rho0 with the corrected gradient (Bonet & Lok 1999)
         grad p_a = (M_a^T)^-1 sum_b V_b (p_b - p_a) grad_a W_ab, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab,
         over fluid and wetted walls (p_w > p_b; a dry wall is air); then x += dt v. Where M_a is near
@@ -285,6 +301,8 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
         self.floor_surface_band_density()
         if self.features.walls:
             self.wall_pressure()
+        if self.step_loop == "device":
+            self.compile_device_step()
 
     def free_dt(self, stats: dict) -> float:
         """The next step's dt before the run loop's cap: the CFL limit on max(|v|max, the moving walls' speed) and
@@ -293,8 +311,17 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
         max_acc = self.explicit_acc[None] if self.explicit_step_force else stats["max_acc"]
         return self.uncapped_dt(max(stats["max_speed"], self.wall_speed), max(max_acc, self.g_norm), 0.0)
 
-    def step(self) -> float:
-        """Advance one step; returns the dt used."""
+    def solve_pressure(self) -> None:
+        """The PPE solve (timed), its iterations and residual recorded."""
+        t_solve = time.perf_counter()
+        iterations, residual, pure_neumann = self.ppe.solve(self.p_background)  # ends on a residual read-back
+        self.ppe_seconds += time.perf_counter() - t_solve
+        self.iterations.append(iterations)
+        self.residuals.append(residual)
+        self.pure_neumann_steps += int(pure_neumann)
+
+    def host_step(self) -> float:
+        """Advance one step with dt chosen on the host from a stats read-back; returns the dt used."""
         self.update_body_force()
         s = self.read_stats()
         dt_free = self.free_dt(s)  # the step before the run loop shortens it to land on t_end
@@ -306,12 +333,7 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
             self.wall_pressure()  # ghost velocities for the viscous terms
         self.predict_velocity(dt)
         self.assemble_ppe(dt, dt_free)
-        t_solve = time.perf_counter()
-        iterations, residual, pure_neumann = self.ppe.solve(self.p_background)  # ends on a residual read-back
-        self.ppe_seconds += time.perf_counter() - t_solve
-        self.iterations.append(iterations)
-        self.residuals.append(residual)
-        self.pure_neumann_steps += int(pure_neumann)
+        self.solve_pressure()
         if self.features.walls:
             self.wall_pressure()
         self.correct_and_move(dt)
@@ -326,8 +348,9 @@ class ISPHSolver(FreeSurfaceDetection, SolverBase):
 
     # -- reporting ------------------------------------------------------------------------------------
     def extra_summary(self) -> dict:
-        """`ppe` (iterations, residuals, settings), `ppe_warnings` and the kinematic wall condition's count."""
-        return {**ppe_summary(self), **self.kinematic_walls_summary()}
+        """`ppe` (iterations, residuals, settings), `ppe_warnings`, the kinematic wall condition's count and
+        `step_loop` (device: dt and t on the device, solvers/isph_loop.py; host: dt from a stats read-back)."""
+        return {**ppe_summary(self), **self.kinematic_walls_summary(), "step_loop": self.step_loop}
 
     def extra_timeseries(self) -> dict:
         """Iterations and relative residual of the last PPE solve."""

@@ -39,7 +39,10 @@ class CheckpointState:
         def walk(obj, prefix: str) -> None:
             seen.add(id(obj))
             values = {}
+            transient = getattr(obj, "transient_state", ())  # rewritten before each use: not state
             for name, value in vars(obj).items():
+                if name in transient:
+                    continue
                 key = f"{prefix}.{name}"
                 if isinstance(value, ti.Field):
                     fields[key] = value
@@ -54,12 +57,18 @@ class CheckpointState:
         walk(self, "solver")
         return fields, arrays, plain
 
+    def missing_state(self, fields: dict[str, np.ndarray]) -> str:
+        """What a checkpoint's arrays lack of this solver's state ('' when nothing)."""
+        own_fields, own_arrays, _ = self.state_items()
+        missing = (set(own_fields) | set(own_arrays)) - set(fields)
+        return f"checkpoint lacks {sorted(missing)[:3]}: written by another solver or version" if missing else ""
+
     def restore_state(self, fields: dict[str, np.ndarray], plain: dict[str, dict]) -> None:
         """Put back what `state_items` saved (fields and numpy arrays by key, plain values by owner)."""
         own_fields, own_arrays, own_plain = self.state_items()
-        missing = (set(own_fields) | set(own_arrays)) - set(fields)
+        missing = self.missing_state(fields)
         if missing:
-            raise ValueError(f"checkpoint lacks {sorted(missing)[:3]}: written by another solver or version")
+            raise ValueError(missing)
         for key, f in own_fields.items():
             f.from_numpy(fields[key])
         for key, a in own_arrays.items():

@@ -1,0 +1,65 @@
+"""ISPH's dt and t on the device (solvers/isph_loop.py): the same run as the host-stepped one bit for bit, no
+stats read-back a step, an f32 clock left host-stepped, and checkpoints that do not carry the loop's constants."""
+
+import math
+
+import numpy as np
+from test_ppe_loop import by_id, launched
+
+from taichi_sph.config.loader import bundled_configs_dir, load_config
+from taichi_sph.run.instrument import count_host_traffic
+from taichi_sph.scene.bodies import build_particles
+from taichi_sph.solvers.registry import make_solver
+
+
+def dam_break(*overrides: str):
+    cfg = load_config(bundled_configs_dir() / "dam_break_2d.yaml",
+                      ["particles.dx=0.05", "solver=isph", *overrides])
+    solver = make_solver(cfg, build_particles(cfg))
+    solver.ppe.serial = True  # skip the loop-schedule probe (its own read-backs)
+    return solver
+
+
+def test_device_dt_equals_the_host_rule_bit_for_bit():
+    """A gravity ramp (cos on the device in f64), an output time inside the run and a cut last step: the device
+    path takes the host path's dts, dt limits, PPE records and state bit for bit."""
+    runs = {}
+    for loop in ("host", "device"):
+        solver = dam_break("gravity_ramp=0.02")
+        solver.step_loop = loop
+        solver.prepare()
+        dts = solver.advance(100, 0.03, 0.0853) + solver.advance(100, math.inf, 0.0853)
+        runs[loop] = (dts, solver.t, solver.step_count, solver.last_dt_limit, solver.iterations, solver.residuals,
+                      by_id(solver), solver.gravity.to_numpy())
+    host, device = runs["host"], runs["device"]
+    assert device[:6] == host[:6]
+    assert abs(device[1] - 0.0853) < 1e-12 and len(device[0]) > 3
+    for key in ("x", "v", "p"):
+        np.testing.assert_array_equal(device[6][key], host[6][key], err_msg=key)
+    np.testing.assert_array_equal(device[7], host[7])
+    assert solver.extra_summary()["step_loop"] == "device"
+
+
+def test_a_step_reads_back_only_the_solve_state():
+    """Read-backs a step: the PPE's batches only (the last one carries dt and t); before, one more for the stats."""
+    solver = dam_break()
+    solver.prepare()
+    for _ in range(2):
+        solver.step()
+    with count_host_traffic() as traffic:
+        for _ in range(5):
+            solver.step()
+    batches, _ = launched(solver.iterations[2:], solver.iterations[1:-1], solver.ppe.check_every)
+    assert traffic.readbacks == batches
+
+
+def test_an_f32_clock_stays_host_stepped():
+    """float64: false: the f32 clock cannot reproduce the host's f64 dt rule, so the step reads the stats back."""
+    assert dam_break("float64=false").step_loop == "host"
+
+
+def test_the_loops_constants_are_not_checkpoint_state():
+    """A checkpoint written before the loop existed has none of its fields: a restore must not need them."""
+    solver = dam_break()
+    fields, arrays, _ = solver.state_items()
+    assert not any(k.split(".")[-1] in solver.transient_state for k in (*fields, *arrays))
