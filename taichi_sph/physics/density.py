@@ -68,6 +68,30 @@ def renormalised_gradient(sum_df, moment):
 
 
 @ti.func
+def renormalisation_matrix(moment):
+    """L_a = (M_a^T)^-1, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab, where M_a is well conditioned for its size
+    (det M > MIN_MOMENT_DETERMINANT (tr M / dim)^dim, tr M / dim > 1e-3, as renormalised_gradient), else the
+    identity (a splash particle's few neighbours: the uncorrected sums). Stored per particle for the corrected
+    symmetric pair (corrected_continuity_rate and momentum.py corrected_symmetric_pressure_gradient), which
+    stays energy-consistent whatever L each particle takes, provided both use the same one."""
+    dim = ti.static(moment.n)
+    scale = moment.trace() / dim
+    out = ti.Matrix.identity(float, dim)
+    if scale > 1e-3:
+        if ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT * scale ** dim:
+            out = moment.transpose().inverse()
+    return out
+
+
+@ti.func
+def corrected_continuity_rate(rho_a: float, vol_b: float, v_ab, l_grad_w) -> float:
+    """d rho_a / dt += rho_a V_b v_ab . L_a grad_a W_ab: d rho_a / dt = -rho_a D_a(v) with the kernel-gradient-
+    corrected divergence D_a(v) = sum_b V_b (v_b - v_a) . L_a grad_a W_ab (l_grad_w = L_a grad_a W_ab), exact for a
+    linear velocity on any support: an affine shear changes no density, so a sheared lattice stores no energy."""
+    return rho_a * vol_b * v_ab.dot(l_grad_w)
+
+
+@ti.func
 def corrected_gradient_pair_terms(vol_b: float, u_ab, r_ab, grad_w):
     """One pair's shares of S = sum_b V_b (u_b - u_a) (x) grad_a W_ab and M = sum_b V_b (x_b - x_a) (x) grad_a W_ab
     (u_ab = u_a - u_b, r_ab = x_a - x_b). grad u_a = S M^-1 is exact for a linear field u at any support, a
