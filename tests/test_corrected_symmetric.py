@@ -43,10 +43,10 @@ def set_fields(solver, p, rho=None, v=None):
 
 
 def test_corrected_symmetric_pair_conserves_energy_on_a_random_state():
-    """Random p, rho (+-10%) and v on a jittered block: sum_a m_a v_a . a_a + sum_a m_a (p_a / rho_a^2) drho_a = 0, i.e.
+    """Random p, rho (+-10%) and v on a jittered block (0.1 dx; L != I where tr M / dim > 0.97): sum_a m_a v_a . a_a + sum_a m_a (p_a / rho_a^2) drho_a = 0, i.e.
     the pressure's work is what the continuity density stores (relative to either sum: f32 rounding, ~1e-5). With
-    the plain continuity divergence (L = I there, L_a in the gradient) it is not: checked to be > 1%."""
-    solver = block("corrected_symmetric", jitter=0.25)
+    the plain continuity divergence (L = I there, L_a in the gradient) it is not: checked to be > 5x the bound."""
+    solver = block("corrected_symmetric", jitter=0.1)
     n = solver.n
     rng = np.random.default_rng(7)
     P = solver.particles
@@ -67,7 +67,7 @@ def test_corrected_symmetric_pair_conserves_energy_on_a_random_state():
     scale = np.sum(np.abs(m * np.einsum("ai,ai->a", v, acc)))
     assert abs(work + stored) < 1e-4 * scale
     lm = solver.l_matrix.to_numpy()[:n]
-    assert np.abs(lm - np.eye(2)).max() > 0.1  # the correction is there to be tested
+    assert np.abs(lm - np.eye(2)).max() > 0.05  # the correction is there to be tested
     # the same state with the uncorrected divergence: the pair is not adjoint
     x = P.x.to_numpy()[:n]
     r_ab = x[:, None, :] - x[None, :, :]
@@ -76,7 +76,7 @@ def test_corrected_symmetric_pair_conserves_energy_on_a_random_state():
         gw = np.where((r > 0)[..., None], (solver.kernel.dw_dr_np(r) / r)[..., None] * r_ab, 0.0)
     vol = m / rho
     drho_plain = rho * np.einsum("b,abi,abi->a", vol, v[:, None, :] - v[None, :, :], gw)
-    assert abs(work + np.sum(m * p / rho**2 * drho_plain)) > 1e-2 * scale
+    assert abs(work + np.sum(m * p / rho**2 * drho_plain)) > 5e-4 * scale
 
 
 def test_corrected_symmetric_gradient_is_exact_for_a_linear_pressure_on_a_sheared_lattice():
@@ -104,8 +104,9 @@ def test_corrected_symmetric_gradient_is_exact_for_a_linear_pressure_on_a_sheare
 def test_corrected_continuity_sees_no_compression_in_a_shear_on_a_disordered_support(form):
     """v = (y, 0) (divergence-free) on a jittered block: the corrected continuity rate is zero to rounding at every
     interior particle, the plain m_b v_ab . grad W is not (the jitter's moment error times the shear, > 1% of
-    |grad v|): what lets a sheared arrangement store internal energy, the lattice elasticity of docs/wcsph.md."""
-    solver = block(form, jitter=0.25)
+    |grad v|): what lets a sheared arrangement store internal energy, the lattice elasticity of docs/wcsph.md.
+    Jitter 0.05 dx: at 0.1 dx some interior supports have tr M / dim < FULL_SUPPORT_SCALE and take L = I."""
+    solver = block(form, jitter=0.05)
     n = solver.n
     P = solver.particles
     x = P.x.to_numpy()[:n]
