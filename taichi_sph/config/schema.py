@@ -166,8 +166,12 @@ class WCSPH:
                                               "-(1/rho_a) L_a sum_b V_b (p_b - p_a) grad_a W_ab with the renormalisation "
                                               "matrix L_a (Bonet & Lok 1999), exact for a linear pressure on any arrangement "
                                               "(no zeroth-order error from the background pressure on a disordered one; not "
-                                              "momentum-conserving; physics/momentum.py corrected_pressure_gradient)",
-                                 choices=("symmetric", "corrected"))
+                                              "momentum-conserving; physics/momentum.py corrected_pressure_gradient), or "
+                                              "'corrected_symmetric': -(1/rho_a) sum_b V_b (p_a L_a + p_b L_b) grad_a W_ab "
+                                              "with the continuity divergence corrected by the same L_a, an energy-"
+                                              "consistent pair (physics/momentum.py corrected_symmetric_pressure_gradient; "
+                                              "experimental, docs/wcsph.md)",
+                                 choices=("symmetric", "corrected", "corrected_symmetric"))
     tensile_instability_control: bool = opt(False, "delta+-SPH's tensile instability control (Sun et al. 2017): a particle "
                                                    "in tension (p_a < 0) away from the free surface takes the pressure "
                                                    "gradient in the difference form (p_b - p_a), which has no pairwise "

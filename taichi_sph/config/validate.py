@@ -104,6 +104,12 @@ def validate(cfg: Config, source: str) -> None:
     if cfg.wcsph.tensile_instability_control and cfg.wcsph.pressure_gradient == "corrected":
         raise ConfigError("the corrected pressure gradient is already the difference form everywhere: switch the tensile "
                           "instability control off", source=source, key="wcsph.pressure_gradient")
+    if cfg.solver == "wcsph" and cfg.wcsph.pressure_gradient == "corrected_symmetric" and (
+            cfg.wcsph.density != "continuity" or cfg.wcsph.tensile_instability_control
+            or cfg.wcsph.surface_pressure_gradient != "symmetric"):
+        raise ConfigError("the corrected symmetric pressure gradient is the adjoint of the corrected continuity divergence: it "
+                          "needs `wcsph.density: continuity`, no tensile instability control and the symmetric surface "
+                          "gradient", source=source, key="wcsph.pressure_gradient")
     if cfg.particles.neighbor_access == "cells" and cfg.solver != "wcsph":
         raise ConfigError("'cells' is for WCSPH only: ISPH assembles its pressure equation from the stored lists; "
                           "use 'lists'", source=source, key="particles.neighbor_access")

@@ -60,6 +60,18 @@ def corrected_pressure_gradient(sum_dp, moment, rho_a: float):
 
 
 @ti.func
+def corrected_symmetric_pressure_gradient(vol_b: float, p_a: float, l_a, p_b: float, l_b, rho_a: float, grad_w):
+    """-(1/rho_a) V_b (p_a L_a + p_b L_b) grad_a W_ab: the negative adjoint of the corrected continuity divergence
+    D_a(v) = sum_b V_b (v_b - v_a) . L_a grad_a W_ab (density.py corrected_continuity_rate). Swapping a and b in
+    sum_a V_a p_a D_a gives sum_a m_a v_a . a_a = sum_a V_a p_a D_a(v) (m = rho V), so the work of the pressure
+    equals the internal energy the density stores, d/dt sum m (v^2/2 + e) = 0 with de/dt = (p / rho^2) d rho / dt;
+    pairwise antisymmetric, so momentum-conserving too. L = I everywhere gives back a symmetric form,
+    -m_b (p_a + p_b) / (rho_a rho_b) grad W. Exact for a linear pressure on an affinely deformed lattice (L uniform,
+    sum_b V_b grad W_ab = 0), not on a disordered one (the 2 p_a L_a sum_b V_b grad W_ab term remains)."""
+    return -vol_b / rho_a * (p_a * (l_a @ grad_w) + p_b * (l_b @ grad_w))
+
+
+@ti.func
 def monaghan_artificial_pressure(p: float, rho: float, epsilon: float, epsilon_positive: float) -> float:
     """Monaghan (2000) R = epsilon |p| / rho^2 for p < 0, epsilon_positive p / rho^2 for p >= 0 (his 0.01)."""
     return ti.select(p < 0.0, -epsilon * p, epsilon_positive * p) / (rho * rho)

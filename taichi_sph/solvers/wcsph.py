@@ -15,12 +15,15 @@ from taichi_sph.config.schema import Config
 from taichi_sph.physics.density import (
     antuono_density_difference,
     continuity_rate,
+    corrected_continuity_rate,
     hydrostatic_density_difference,
     molteni_diffusion,
+    renormalisation_matrix,
     renormalised_gradient,
 )
 from taichi_sph.physics.momentum import (
     corrected_pressure_gradient,
+    corrected_symmetric_pressure_gradient,
     difference_pressure_gradient,
     kernel_sum_scaled_pressure,
     laplacian_moment_term,
@@ -53,6 +56,10 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         self.drho = P.add_scalar() if f.density == "continuity" else None
         self.drho_diffusion = P.add_scalar() if f.density_diffusion != "none" else None
         self.grad_rho = P.add_vector() if f.density_diffusion == "antuono" else None
+        # L_a of the corrected symmetric pair, set by the rates passes and used by the next continuity pass (the same
+        # positions and order: no rebuild between them), so both halves of the pair take the same L
+        self.corrected_symmetric = f.pressure_gradient == "corrected_symmetric"
+        self.l_matrix = ti.Matrix.field(self.dim, self.dim, float, P.n) if self.corrected_symmetric else None
         self.alpha, self.beta = cfg.artificial_viscosity
         self.delta_h_c0 = cfg.wcsph.density_diffusion.delta * self.h * self.c0
         tc = cfg.wcsph.tensile_correction
@@ -90,7 +97,31 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
             self.density_gradient_pass(serial)
         if ti.static(self.features.surface_scaled_pressure):
             self.scaled_pressure_pass(serial)
+        if ti.static(self.corrected_symmetric):
+            self.renormalisation_pass(serial)
         self.wcsph_forces_pass(serial)
+
+    @ti.func
+    def renormalisation_pass(self, serial: ti.template()):
+        """L_a = (M_a^T)^-1, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab over fluid and wall neighbours, for fluid
+        particles (physics/density.py renormalisation_matrix); L = I for wall particles (a wall particle stands
+        for the fluid it mirrors, whose support is full)."""
+        P = self.particles
+        ti.loop_config(serialize=serial)
+        for a in range(self.n):
+            if self.live():
+                lm = ti.Matrix.identity(float, self.dim)
+                if P.kind[a] == FLUID:
+                    moment = ti.Matrix.zero(float, self.dim, self.dim)
+                    self.nsearch.for_each_neighbor(a, P.x, self.moment_pair, moment)
+                    lm = renormalisation_matrix(moment)
+                self.l_matrix[a] = lm
+
+    @ti.func
+    def moment_pair(self, a, b, r_ab, moment: ti.template()):
+        """moment += V_b (x_b - x_a) (x) grad_a W_ab."""
+        P = self.particles
+        moment -= P.mass[b] / P.rho[b] * r_ab.outer_product(self.kernel.grad_w(r_ab, r_ab.norm()))
 
     @ti.func
     def scaled_pressure_pass(self, serial: ti.template()):
@@ -188,7 +219,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         # branch-free: an `if` that sets a flag in this loop made the f32 pass 3x slower
         sums.near_wall = ti.max(sums.near_wall, ti.select(is_fluid_b, 0, 1))
         v_ab = sums.va - P.v[b]
-        self.pressure_pair(b, m_b, rho_b, r_ab, grad_w, sums)
+        self.pressure_pair(a, b, m_b, rho_b, r_ab, grad_w, sums)
         if ti.static(self.features.tensile_correction):
             self.tensile_correction_pair(b, m_b, rho_b, is_fluid_b, r, grad_w, sums)
         if ti.static(self.features.density_diffusion != "none"):
@@ -211,11 +242,15 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                     sums.acc += self.visc_norm * visc
 
     @ti.func
-    def pressure_pair(self, b, m_b, rho_b, r_ab, grad_w, sums: ti.template()):
-        """The symmetric pressure gradient, (tensile instability control) both forms summed apart, or (corrected)
-        the sums of the corrected gradient, which the force pass applies."""
+    def pressure_pair(self, a, b, m_b, rho_b, r_ab, grad_w, sums: ti.template()):
+        """The symmetric pressure gradient, (tensile instability control) both forms summed apart, (corrected)
+        the sums of the corrected gradient, which the force pass applies, or (corrected_symmetric) the adjoint of
+        the corrected continuity divergence."""
         p_b = self.particles.p[b]
-        if ti.static(self.features.pressure_gradient == "corrected"):
+        if ti.static(self.corrected_symmetric):
+            sums.acc += corrected_symmetric_pressure_gradient(m_b / rho_b, sums.p_a, self.l_matrix[a], p_b,
+                                                              self.l_matrix[b], sums.rho_a, grad_w)
+        elif ti.static(self.features.pressure_gradient == "corrected"):
             dp, dm = pressure_difference_pair_terms(m_b / rho_b, sums.p_a, p_b, r_ab, grad_w)
             sums.sum_dp += dp
             sums.moment += dm
@@ -273,10 +308,14 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
 
     @ti.func
     def continuity_pair(self, a, b, r_ab, sums: ti.template()):
-        """drho += m_b v_ab . grad_a W_ab."""
+        """drho += m_b v_ab . grad_a W_ab, or (corrected_symmetric) rho_a V_b v_ab . L_a grad_a W_ab."""
         P = self.particles
         r = r_ab.norm()
-        sums.drho += continuity_rate(P.mass[b], sums.va - P.v[b], self.kernel.grad_w(r_ab, r))
+        if ti.static(self.corrected_symmetric):
+            sums.drho += corrected_continuity_rate(P.rho[a], P.mass[b] / P.rho[b], sums.va - P.v[b],
+                                                   self.l_matrix[a] @ self.kernel.grad_w(r_ab, r))
+        else:
+            sums.drho += continuity_rate(P.mass[b], sums.va - P.v[b], self.kernel.grad_w(r_ab, r))
 
     @ti.func
     def kick_pass(self, dt: float, dt_drift: float, guard: ti.template(), serial: ti.template()):

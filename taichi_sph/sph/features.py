@@ -30,7 +30,7 @@ class Features:
     tensile_correction: bool
     tensile_instability_control: bool  # Sun et al. 2017's difference form in tension (WCSPH)
     surface_scaled_pressure: bool      # p / (S / S_lattice) in the symmetric pressure gradient (WCSPH)
-    pressure_gradient: str        # symmetric | corrected (WCSPH; ISPH's is always corrected)
+    pressure_gradient: str        # symmetric | corrected | corrected_symmetric (WCSPH; ISPH's is always corrected)
     integrator: str
     periodic: tuple[bool, ...]
     reflecting: bool
