@@ -97,11 +97,18 @@ def corrected_continuity_rate(rho_a: float, vol_b: float, v_ab, l_grad_w) -> flo
 
 
 @ti.func
+def moment_pair_term(vol_b: float, r_ab, grad_w):
+    """One pair's share of the moment matrix M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab (r_ab = x_a - x_b), the
+    matrix the kernel-gradient correction inverts (Bonet & Lok 1999)."""
+    return -vol_b * r_ab.outer_product(grad_w)
+
+
+@ti.func
 def corrected_gradient_pair_terms(vol_b: float, u_ab, r_ab, grad_w):
     """One pair's shares of S = sum_b V_b (u_b - u_a) (x) grad_a W_ab and M = sum_b V_b (x_b - x_a) (x) grad_a W_ab
     (u_ab = u_a - u_b, r_ab = x_a - x_b). grad u_a = S M^-1 is exact for a linear field u at any support, a
     free surface's truncated one included (the kernel-gradient correction of Bonet & Lok 1999)."""
-    return -vol_b * u_ab.outer_product(grad_w), -vol_b * r_ab.outer_product(grad_w)
+    return -vol_b * u_ab.outer_product(grad_w), moment_pair_term(vol_b, r_ab, grad_w)
 
 
 @ti.func

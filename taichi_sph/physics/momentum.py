@@ -10,7 +10,7 @@ tensile terms did on the dam break and the rotating square: docs/notes/momentum.
 
 import taichi as ti
 
-from taichi_sph.physics.density import renormalised_gradient
+from taichi_sph.physics.density import moment_pair_term, renormalised_gradient
 
 
 @ti.func
@@ -44,7 +44,7 @@ def kernel_sum_scaled_pressure(p: float, kernel_sum_ratio: float, floor: float) 
 def pressure_difference_pair_terms(vol_b: float, p_a: float, p_b: float, r_ab, grad_w):
     """One pair's shares of sum_b V_b (p_b - p_a) grad_a W_ab and of the moment matrix
     M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab (r_ab = x_a - x_b): the two sums of corrected_pressure_gradient."""
-    return vol_b * (p_b - p_a) * grad_w, -vol_b * r_ab.outer_product(grad_w)
+    return vol_b * (p_b - p_a) * grad_w, moment_pair_term(vol_b, r_ab, grad_w)
 
 
 @ti.func

@@ -112,9 +112,9 @@ class Simulation:
         self.order_probe = OrderProbe(solver)
         # a checkpoint written before the particle-order diagnostics has no log: start one
         self.order_log = ParticleOrderLog(**(resume.meta.get("particle_order") or {}) if resume is not None else {})
-        if resume is not None and solver.missing_state(resume.arrays):  # before the run folder is touched
-            raise UsageError(f"the checkpoint does not fit this solver ({solver.missing_state(resume.arrays)}); "
-                             "--overwrite starts afresh")
+        missing = solver.missing_state(resume.arrays) if resume is not None else ""
+        if missing:  # before the run folder is touched
+            raise UsageError(f"the checkpoint does not fit this solver ({missing}); --overwrite starts afresh")
         folder, loop = self._run_folder(resume)
         self.log(f"{cfg.name}: {solver.name}, dim {cfg.dim}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles, "
                  f"dx {cfg.particles.dx:g}, h {cfg.h:.4g}, c0 {solver.c0:.4g} m/s, arch {current_arch_name()}")

@@ -18,6 +18,7 @@ from taichi_sph.physics.density import (
     corrected_continuity_rate,
     hydrostatic_density_difference,
     molteni_diffusion,
+    moment_pair_term,
     renormalisation_matrix,
     renormalised_gradient,
 )
@@ -121,7 +122,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
     def moment_pair(self, a, b, r_ab, moment: ti.template()):
         """moment += V_b (x_b - x_a) (x) grad_a W_ab."""
         P = self.particles
-        moment -= P.mass[b] / P.rho[b] * r_ab.outer_product(self.kernel.grad_w(r_ab, r_ab.norm()))
+        moment += moment_pair_term(P.mass[b] / P.rho[b], r_ab, self.kernel.grad_w(r_ab, r_ab.norm()))
 
     @ti.func
     def scaled_pressure_pass(self, serial: ti.template()):
