@@ -82,6 +82,7 @@ SLOW = {
     "test_run_render.py::test_dam_break_renders_frames_and_video[dam_break_3d.yaml-0.06-0.04-4]": "118 s",
     "test_run_safety.py::test_disk_full_in_a_snapshot_fails_cleanly_and_resume_continues": "108 s",
     "test_validation.py::test_cavity_coarse_run_approaches_ghia": "108 s",
+    "test_isph.py::test_the_bundled_cavity_keeps_going_past_its_corner_blow_up": "40 s (session 18)",
     "test_particle_order.py::test_a_hole_in_a_lattice_is_a_void_and_only_its_rim_is_flagged[3]": "93 s",
     "test_validation.py::test_poiseuille_coarse_start_up_follows_the_series": "91 s",
     "test_ppe_loop.py::test_runs_do_not_depend_on_check_every[mgcg]": "84 s",

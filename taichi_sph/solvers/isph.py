@@ -42,6 +42,8 @@ from taichi_sph.solvers.shifting import ParticleShifting
 
 # source weight beta in s = (1 - beta) s_divergence + beta s_density, per `isph.source`
 SOURCE_WEIGHT = {"divergence": lambda blend: 0.0, "density_invariance": lambda blend: 1.0, "blend": lambda blend: blend}
+# isph.blend's default with a free surface and in a confined fluid (schema text; docs/isph.md)
+FREE_SURFACE_BLEND, CONFINED_BLEND = 1.0, 0.1
 
 
 @ti.data_oriented
@@ -49,6 +51,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
     """Projection ISPH: Shao & Lo Laplacian, matrix-free Jacobi / PCG, free-surface Dirichlet, Neumann walls."""
 
     name = "isph"
+    # beta: set by prepare from the scene's initial state (find_confinement), as the kernels compiled with it
+    transient_state = ISPHDeviceLoop.transient_state + FreeSurfaceDetection.transient_state + ("beta",)
     wall_wall_pairs = False  # no ISPH term couples two wall particles
 
     def __init__(self, cfg: Config, arrays: ParticleArrays) -> None:
@@ -56,7 +60,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         P = self.particles
         ic = cfg.isph
         self.source = ic.source
-        self.beta = SOURCE_WEIGHT[ic.source](ic.blend)
+        # isph.blend None: FREE_SURFACE_BLEND, lowered by find_confinement for a fluid that fills its container
+        self.default_blend = ic.source == "blend" and ic.blend is None
+        self.beta = SOURCE_WEIGHT[ic.source](FREE_SURFACE_BLEND if ic.blend is None else ic.blend)
         self.compression_only = ic.compression_only
         self.corrected_divergence = ic.divergence == "corrected"
         self.surface_threshold = ic.free_surface_threshold
@@ -76,6 +82,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         # kinematic wall condition: each wall particle knows the face it lies behind (permuted with it)
         self.init_kinematic_walls(arrays, ic.wall_clearance)
         P.make_persistent(P.acc)  # the free-surface pressure uses the last acceleration
+        self.init_free_surface_detection()
         self.rho_summation = P.add_scalar()    # rho_a before any floor: the density-invariance source
         self.grad_p_estimate = P.add_vector()  # rho0 (g - a) of the last step: grad p near the surface
         # isph.density: continuity: each particle's density, carried by the divergence of its motion and shift
@@ -298,6 +305,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
     def prepare(self) -> None:
         self.rebuild_neighbors()
         self.detect_free_surface()
+        self.find_confinement()
+        if self.confined and self.default_blend:
+            self.beta = CONFINED_BLEND  # before any kernel that reads it is compiled
         self.floor_surface_band_density()
         if self.features.walls:
             self.wall_pressure()

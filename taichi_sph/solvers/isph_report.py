@@ -25,6 +25,8 @@ def ppe_summary(solver) -> dict:
                "tolerance": ppe.tolerance, "max_iterations": ppe.max_iterations,
                "source": solver.source if solver.source != "blend" else f"blend({solver.beta:g})",
                "pure_neumann_steps": solver.pure_neumann_steps,
+               "free_surface": ("none: the fluid fills its container at the start (no detection)" if solver.confined
+                                else "detected every step"),
                "multigrid_levels": ppe.mg.describe() if ppe.mg else None,
                "loop_schedule": {None: "undecided", True: "serial", False: "parallel"}[ppe.serial],
                "walls": "Neumann (pairwise hydrostatic) in the PPE, Adami pressure >= p_b in the gradient",
