@@ -192,8 +192,8 @@ def test_the_bundled_cavity_keeps_going_past_its_corner_blow_up(tmp_path):
     """The nx 50 lid-driven cavity with ISPH's defaults: before the fluid was found confined, a particle the
     lid's corner dragged the fluid away from was flagged free-surface in 118 of 560 steps, the pure-Neumann
     system was pinned there and the density-invariance source drained through it (pressure level +86 in one
-    step, 3.4 m/s under a 1 m/s lid, non-finite at t = 1.5 s). With the confined weight (0.1) the closest pair
-    stays above 0.6 dx and the speed below 1.4 lid speeds (measured to t = 10: ok, max density error 16%)."""
+    step, 3.4 m/s under a 1 m/s lid, non-finite at t = 1.5 s). Confined, with the weight 0.1, to t = 2: closest
+    pair 0.62 dx, max density error 13% (to t = 10: ok, 16%)."""
     cfg = load_config(bundled_configs_dir() / "cavity_2d.yaml", ["solver=isph", "time.t_end=2.0"])
     s = Simulation(cfg, tmp_path, render=False, quiet=True).run().summary
     assert s["status"] == "ok"
