@@ -10,7 +10,7 @@ from taichi_sph.config.loader import bundled_configs_dir, load_config
 from taichi_sph.render.side_by_side import side_by_side_frames
 from taichi_sph.scene.bodies import FLUID, WALL
 from taichi_sph.studies import compare as cmp
-from taichi_sph.studies.sweep import convergence_order, default_dx_values, parse_dx_list
+from taichi_sph.studies.sweep import convergence_order, default_dx_values, local_orders, non_monotone, parse_dx_list, sweep_markdown
 
 TANK = bundled_configs_dir() / "stability" / "tank.yaml"
 # 10 x 10 fluid particles, 20 output rows of a few steps each: seconds per run
@@ -34,6 +34,27 @@ def test_convergence_order_skips_missing_and_needs_two_points():
     assert convergence_order([0.04, 0.02], [1e-3, 0.0]) is None
     assert convergence_order([0.02, 0.02], [1e-3, 2e-3]) is None
     assert convergence_order([], []) is None
+
+
+def test_local_orders_between_neighbouring_spacings():
+    # second order from 0.04 to 0.02, first from 0.02 to 0.01; the input order does not matter
+    steps = local_orders([0.01, 0.04, 0.02], [2e-4, 1.6e-3, 4e-4])
+    assert [(a, b) for a, b, _ in steps] == [(0.04, 0.02), (0.02, 0.01)]
+    assert [p for _, _, p in steps] == pytest.approx([2.0, 1.0])
+    # a signed error (a decay-rate bias) converges by its magnitude; a missing point is skipped
+    assert [p for _, _, p in local_orders([0.04, 0.02, 0.01], [-4e-3, None, -1e-3])] == pytest.approx([1.0])
+
+
+def test_a_sweep_whose_error_rises_on_refinement_is_flagged():
+    assert non_monotone([0.04, 0.02, 0.01], [1e-3, 5e-4, 2.5e-4]) == []
+    assert non_monotone([0.04, 0.02, 0.01], [1e-3, 5e-4, 6e-4]) == [(0.02, 0.01)]
+    assert non_monotone([0.04, 0.02], [1e-3, 1e-3]) == [(0.04, 0.02)]  # flat is not convergence either
+    result = {"scene": "s", "metrics": ["l1"], "primary_metric": "l1", "order": {"wcsph": {"l1": 0.5}},
+              "local_order": {"wcsph": {"l1": local_orders([0.04, 0.02, 0.01], [1e-3, 5e-4, 6e-4])}},
+              "non_monotone": {"wcsph": {"l1": [(0.02, 0.01)]}}, "runs": []}
+    md = sweep_markdown(result)
+    assert "**not monotone**: wcsph l1 did not fall from dx 0.02 to 0.01" in md
+    assert "0.04 -> 0.02: 1" in md
 
 
 def test_dx_values():

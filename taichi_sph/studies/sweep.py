@@ -3,7 +3,9 @@
 Writes `sweep.csv` (one row per run: solver, dx, particle counts, every error metric, wall time,
 steps, status), `error_vs_time.png` (log-log, one line per solver, points labelled with dx) and
 `sweep.json` / `sweep.md` with the observed convergence order per solver: the least-squares slope
-of log(error) against log(dx) over the finished runs.
+of log(error) against log(dx) over the finished runs, the order between each pair of neighbouring
+resolutions, and a flag on every refinement after which an error did not fall (a non-monotone sweep:
+its least-squares order is not a convergence rate).
 
 The runs go through executor.run_cases (in this process, a process pool or a Ray cluster), each into
 out_dir/<solver>_dx<dx>/; the report is assembled from those folders' summary.json.
@@ -69,6 +71,25 @@ def convergence_order(dx, error) -> float | None:
     return float(np.polyfit(np.log(dx[ok]), np.log(err[ok]), 1)[0])
 
 
+def local_orders(dx, error) -> list[tuple[float, float, float | None]]:
+    """(coarse dx, fine dx, p) for each pair of neighbouring spacings (sorted coarse to fine) with finite errors:
+    p = log(|e_coarse| / |e_fine|) / log(dx_coarse / dx_fine); None where an error is zero."""
+    points = sorted(((float(d), float(e)) for d, e in zip(dx, error) if is_number(e) and math.isfinite(e)
+                     and d > 0), reverse=True)
+    out: list[tuple[float, float, float | None]] = []
+    for (d0, e0), (d1, e1) in zip(points, points[1:]):
+        if d0 == d1:
+            continue
+        p = math.log(abs(e0) / abs(e1)) / math.log(d0 / d1) if e0 != 0 and e1 != 0 else None
+        out.append((d0, d1, p))
+    return out
+
+
+def non_monotone(dx, error) -> list[tuple[float, float]]:
+    """The refinements (coarse dx, fine dx) after which |error| did not fall."""
+    return [(d0, d1) for d0, d1, p in local_orders(dx, error) if p is None or p <= 0.0]
+
+
 def case_name(solver: str, dx: float) -> str:
     """The run folder of one sweep case, relative to the sweep's folder."""
     return f"{solver}_dx{dx:g}"
@@ -110,12 +131,21 @@ def sweep(cfg: Config, dxs: list[float], solvers: list[str], out_dir: Path, log=
         metric_names += [k for k, v in r["errors"].items() if is_number(v) and k not in metric_names]
     primary = primary_error({k: 1.0 for k in metric_names})
     orders: dict[str, dict[str, float | None]] = {}
+    pairwise: dict[str, dict[str, list]] = {}
+    flagged: dict[str, dict[str, list]] = {}
     for solver in solvers:
         done = [r for r in rows if r["solver"] == solver and r["status"] == "ok"]
-        orders[solver] = {m: convergence_order([r["dx"] for r in done], [r["errors"].get(m) for r in done])
-                          for m in metric_names}
+        dx_done = [r["dx"] for r in done]
+        orders[solver] = {m: convergence_order(dx_done, [r["errors"].get(m) for r in done]) for m in metric_names}
+        pairwise[solver] = {m: local_orders(dx_done, [r["errors"].get(m) for r in done]) for m in metric_names}
+        flagged[solver] = {m: bad for m in metric_names
+                           if (bad := non_monotone(dx_done, [r["errors"].get(m) for r in done]))}
+        for m, bad in flagged[solver].items():
+            if m == primary:
+                log(f"sweep: {solver}: {m} is not monotone: it did not fall from dx "
+                    + ", ".join(f"{a:g} to {b:g}" for a, b in bad))
     result = {"scene": cfg.name, "dx": dxs, "solvers": solvers, "primary_metric": primary, "metrics": metric_names,
-              "order": orders, "runs": rows}
+              "order": orders, "local_order": pairwise, "non_monotone": flagged, "runs": rows}
     _write_csv(rows, metric_names, out_dir / "sweep.csv")
     if primary is not None:
         from taichi_sph.studies.plots import plot_error_vs_time
@@ -154,6 +184,17 @@ def sweep_markdown(result: dict) -> str:
     for solver, orders in result["order"].items():
         parts = [f"{m} {format_value(p)}" for m, p in orders.items()]
         lines.append(f"- {solver}: " + (", ".join(parts) if parts else "no error metric"))
+    primary = result.get("primary_metric")
+    for solver, by_metric in result.get("local_order", {}).items():
+        steps = by_metric.get(primary) or []
+        if steps:
+            lines.append(f"- {solver}, {primary} between neighbouring spacings: "
+                         + ", ".join(f"{a:g} -> {b:g}: {format_value(p)}" for a, b, p in steps))
+    for solver, by_metric in result.get("non_monotone", {}).items():
+        for m, bad in by_metric.items():
+            lines.append(f"- **not monotone**: {solver} {m} did not fall from dx "
+                         + ", ".join(f"{a:g} to {b:g}" for a, b in bad)
+                         + " (its least-squares order is not a convergence rate)")
     if result.get("primary_metric"):
         lines += ["", f"Primary metric: {result['primary_metric']}; plot: [error_vs_time.png](error_vs_time.png)"]
     for r in result["runs"]:
