@@ -139,6 +139,7 @@ SLOW = {
     "test_ppe_loop.py::test_fused_iteration_equals_the_split_one[False]": "27 s",
     "test_wcsph.py::test_loop_schedule_gives_identical_results": "23 s",
     "test_validate.py::test_quick_run_of_a_tiny_scene_writes_the_table_with_numbers": "23 s",
+    "test_validate.py::test_a_quick_convergence_study_adds_its_runs_and_section": "17 s: three tank runs",
     "test_standing_wave.py::test_a_wave_that_gains_energy_ends_unstable[overrides0-1.0]": "23 s (the other two stay)",
     "test_run_safety.py::test_disk_full_in_the_timeseries_or_the_summary[timeseries]": "22 s (the summary case stays)",
     "test_executor.py::test_a_failed_case_does_not_stop_the_others_and_is_in_the_report": "22 s",

@@ -140,3 +140,44 @@ def test_an_unknown_scene_is_a_usage_error(capsys):
     assert main(["validate", "--scenes", "no_such_scene"]) == 2
     err = capsys.readouterr().err
     assert "no validation scene 'no_such_scene'" in err and "cavity_re1000_2d" in err
+
+
+# ----------------------------------------------------------------------------- convergence studies
+def test_the_taylor_green_study_is_issue_26s_four_spacings():
+    from taichi_sph.studies import validate_convergence as vc
+    dxs = vc.STUDIES["taylor_green_2d"]
+    cfg = load_config(BUNDLED / "taylor_green_2d.yaml")
+    assert len(dxs) == 4 and max(dxs) == cfg.particles.dx and min(dxs) == pytest.approx(0.005)
+    assert all(abs(1.0 / dx - round(1.0 / dx)) < 1e-9 for dx in dxs)  # whole particles across the periodic box
+    assert vc.ORDER_TARGET == 1.5
+
+
+def test_a_study_that_does_not_converge_misses_its_target():
+    from taichi_sph.studies.validate_convergence import study_verdict
+    ok = [{"dx": 0.02, "status": "ok"}, {"dx": 0.01, "status": "ok"}]
+    assert study_verdict(2.0, [], ok) == "meets target"
+    assert study_verdict(1.2, [], ok) == "misses target"
+    assert study_verdict(2.0, [(0.02, 0.01)], ok) == "misses target (not monotone)"
+    assert study_verdict(2.0, [], [ok[0], {"dx": 0.01, "status": "unstable"}]).startswith("incomplete: dx 0.01")
+
+
+def test_a_quick_convergence_study_adds_its_runs_and_section(tmp_path, monkeypatch):
+    from taichi_sph.studies import validate_convergence as vc
+    monkeypatch.setitem(vc.QUICK_STUDIES, "hydrostatic_2d", (0.05, 0.04))
+    configs = tmp_path / "configs"
+    configs.mkdir()
+    shutil.copy(BUNDLED / "hydrostatic_2d.yaml", configs / "hydrostatic_2d.yaml")
+    out = tmp_path / "report" / "validation_report.md"
+    rc = main(["validate", "--quick", "--configs", str(configs), "--solvers", "wcsph", "--out", str(out),
+               "--runs", str(tmp_path / "runs"), "--set", "time.t_end=0.02", "--quiet"])
+    assert rc == 0
+    text = out.read_text()
+    section = text.split("## Convergence", 1)[1]
+    assert "### hydrostatic_2d, wcsph: pressure, rel. L2 error against dx" in section
+    rows = [ln for ln in section.splitlines() if ln.startswith("| 0.0")]
+    assert [r.split(" | ")[0] for r in rows] == ["| 0.05", "| 0.04"]
+    assert all(float(r.split(" | ")[2]) > 0 for r in rows)           # a number at each spacing
+    assert "observed order (least squares" in section and "target >= 1.5" in section
+    assert (tmp_path / "runs" / "hydrostatic_2d-wcsph-dx0.04" / "summary.json").exists()
+    assert (out.parent / "validation_report_figures" / "hydrostatic_2d_convergence.png").stat().st_size > 1000
+    assert len(table_rows(text.split("## Convergence")[0])) == 1    # the main table: the scene's own run only

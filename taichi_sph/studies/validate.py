@@ -5,8 +5,9 @@ and with ISPH (a solver the scene's config refuses is listed as not applicable) 
 this process, a process pool with `--jobs N`, or a Ray cluster), each into `<runs>/<scene>-<solver>/`. The
 report (default docs/validation_report.md; with --quick, renders/validate-quick/validation_report.md) holds one table, a row per scene, solver and checked metric (ours, the
 reference or published figure and target of validate_checks.py, resolution, wall time, status), in the order of
-the config files, and one figure per scene (validate_figures.py) in `<report stem>_figures/`. Only the header
-line carries a date, so a rerun rewrites the same table up to run-to-run noise.
+the config files, and one figure per scene (validate_figures.py) in `<report stem>_figures/`. Scenes with a
+convergence study (validate_convergence.py: the Taylor-Green vortex at 4 spacings) add its runs and a section with
+the observed order. Only the header line carries a date, so a rerun rewrites the same table up to run-to-run noise.
 
 A run that fails or ends unstable is a row saying so; the command then exits as compare and sweep do
 (compare.batch_exit_code: 130 interrupted, 1 failed, 3 unstable, else 0). A missed target is a status in the
@@ -32,6 +33,7 @@ from taichi_sph.studies.executor import Dispatch, Job, dispatch_from_args, run_c
 from taichi_sph.studies.sweep import parse_solvers
 from taichi_sph.studies.table import format_value, is_number
 from taichi_sph.studies.validate_checks import checks_for, quick_overrides
+from taichi_sph.studies.validate_convergence import Study, plot_convergence, studies_for, study_jobs, study_markdown, study_points
 
 DEFAULT_REPORT = Path("docs/validation_report.md")
 QUICK_REPORT = "validation_report.md"  # --quick: in its runs folder, never over the validated report
@@ -152,8 +154,9 @@ def _cell(text: str) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
 
-def report_markdown(rows: list[dict], figures: dict[str, str], *, quick: bool, command: str, header: str) -> str:
-    """The report: a header line (the only dated line), the table, the figures."""
+def report_markdown(rows: list[dict], figures: dict[str, str], *, quick: bool, command: str, header: str,
+                    convergence: list[str] = ()) -> str:
+    """The report: a header line (the only dated line), the table, the convergence studies, the figures."""
     lines = ["# Validation report", "",
              "<!-- written by `taichi-sph validate`; edit docs/validation.md instead (a person maintains it) -->", "",
              header, ""]
@@ -169,6 +172,9 @@ def report_markdown(rows: list[dict], figures: dict[str, str], *, quick: bool, c
     lines += ["", "Wall time: the time steps only (compile time apart), on the machine of the header line. Status: "
               "`meets target` / `misses target` where a target is documented (validate_checks.py names its source), "
               "`no target` otherwise; `failed` and `unstable` runs make the command exit non-zero.", ""]
+    if convergence:
+        lines += ["## Convergence", "", "The scene's first checked metric at each spacing (defaults and the scene's "
+                  "own settings); the order is the slope of log |error| against log dx.", ""] + list(convergence)
     if figures:
         lines += ["## Figures", "", "The reference in black, our runs in colour (one per solver).", ""]
         for scene, rel in figures.items():
@@ -191,13 +197,16 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
     log = log or (lambda msg: print(msg, file=sys.stderr))
     t0 = time.perf_counter()
     cases = [c for path in scenes for c in scene_cases(path, quick=quick, overrides=list(overrides), solvers=solvers)]
+    studies = studies_for(cases, quick=quick)
     jobs = [Job(c.name, c.cfg, runs_dir / c.name) for c in cases if c.cfg is not None]
+    jobs += [job for study in studies for job in study_jobs(study, runs_dir)]
     summaries = run_cases(jobs, dispatch, label="validate") if jobs else {}
     rows = [row for c in cases for row in case_rows(c, summaries.get(c.name))]
 
     from taichi_sph.studies.validate_figures import scene_figure
     out = Path(out)
     figure_dir = out.with_name(out.stem + "_figures")
+    convergence = convergence_sections(studies, summaries, figure_dir, out.parent)
     figures: dict[str, str] = {}
     for scene in dict.fromkeys(c.scene for c in cases):
         done = {c.solver: runs_dir / c.name for c in cases if c.scene == scene and c.cfg is not None
@@ -214,9 +223,26 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
             figures[scene] = os.path.relpath(path, out.parent)
     header = _header(quick, dispatch.jobs, time.perf_counter() - t0)
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(report_markdown(rows, figures, quick=quick, command=command, header=header))
+    out.write_text(report_markdown(rows, figures, quick=quick, command=command, header=header,
+                                   convergence=convergence))
     statuses = [r["run_status"] for r in rows if r["run_status"] != "n/a"]
+    statuses += [summaries.get(j.name, {}).get("status", "failed") for study in studies
+                 for j in study_jobs(study, runs_dir)]
     return {"rows": rows, "statuses": statuses, "path": out, "figures": figures}
+
+
+def convergence_sections(studies: list[Study], summaries: dict[str, dict], figure_dir: Path,
+                         report_dir: Path) -> list[str]:
+    """The report's convergence section: per study, its table and orders; one figure per scene."""
+    points = {study.base_name: study_points(study, summaries) for study in studies}
+    lines: list[str] = []
+    for scene in dict.fromkeys(study.scene for study in studies):
+        of_scene = [study for study in studies if study.scene == scene]
+        path = plot_convergence(of_scene, points, figure_dir / f"{scene}_convergence.png")
+        figure = os.path.relpath(path, report_dir) if path is not None else None
+        for i, study in enumerate(of_scene):
+            lines += study_markdown(study, points[study.base_name], figure if i == len(of_scene) - 1 else None)
+    return lines
 
 
 def cmd_validate(args) -> int:
