@@ -120,6 +120,8 @@ def test_interior_density_error_leaves_out_the_surface_band(solver):
     assert np.allclose(p["kernel_sum"][full], 1.0, atol=1e-4)
     row = probe.measure()
     assert row["interior_density_error"] == pytest.approx(0.05, abs=1e-5)
+    # the signed mean: the centre's +5% spread over the full-support particles, the surface band's deficits left out
+    assert row["interior_density_drift"] == pytest.approx(0.05 / full.sum(), rel=1e-3)
     assert row["interior_kernel_sum_error"] < 1e-4
     moved = x.copy()
     moved[np.argmin(np.linalg.norm(x - side / 2, axis=1)), 0] += 0.3 * DX
@@ -191,6 +193,7 @@ def test_order_log_extremes_and_warnings():
     log.record(1.5, {"min_pair_distance_dx": 0.9, "min_wall_distance_dx": 1.0, "void_particles": 2,
                      "free_surface_fraction": 0.25, "interior_density_error": 0.01, "interior_kernel_sum_error": 0.04})
     assert log.interior_density_error == 0.02 and log.summary()["interior_kernel_sum_error_max"] == 0.04
+    assert log.summary()["interior_density_drift_extreme"] is None
     s = log.summary()
     assert s["min_pair_distance_dx"] == 0.8 and s["min_pair_distance_t"] == 0.5 and s["min_wall_distance_dx"] == 0.9
     assert s["max_void_particles"] == 7 and s["max_void_t"] == 0.5 and s["void_outputs"] == 3
@@ -229,3 +232,17 @@ def test_void_grid_ignores_an_unstable_state():
     x[3], x[5], x[7] = [1e30, np.nan], [np.inf, -np.inf], [-1e30, 0.5]
     c = np.where(np.arange(len(x)) < 20, 0.5, 1.0)
     assert not void_particles(x, c, 0.8, DX, (-1.0, -1.0), (2.0, 2.0), (False, False)).any()
+
+
+def test_a_drift_of_the_mean_density_is_warned_of():
+    """The signed drift of largest magnitude over the outputs is kept with its time; past 2% a warning names it."""
+    log = ParticleOrderLog()
+    base = {"min_pair_distance_dx": 1.0, "min_wall_distance_dx": None, "void_particles": 0, "free_surface_fraction": 0.0}
+    log.record(0.0, {**base, "interior_density_drift": 0.001})
+    log.record(1.0, {**base, "interior_density_drift": -0.015})
+    log.record(2.0, {**base, "interior_density_drift": 0.012})
+    assert log.summary()["interior_density_drift_extreme"] == -0.015 and log.summary()["interior_density_drift_t"] == 1.0
+    assert log.warnings() == []
+    log.record(3.0, {**base, "interior_density_drift": 0.031})
+    (w,) = log.warnings()
+    assert "drifted +3.1%" in w and "t = 3 s" in w

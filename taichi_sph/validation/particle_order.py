@@ -19,6 +19,11 @@ Every run (both solvers, 1D/2D/3D) writes, per output row of timeseries.csv:
   the free surface cuts has a kernel-sum deficit that is not expansion (ISPH floors it at rho0 only
   below c_a = 0.97, so the band 0.97-1 shows as up to 3%). This one is compression or expansion of fluid
   whose neighbourhood is complete, for either solver;
+- `interior_density_drift`: the signed mean of rho_a / rho0 - 1 over the same particles: a uniform drift of the
+  whole fluid's density, which the max above does not tell from local compression (WCSPH's continuity density
+  does not see a particle shift's volume change: in the lid-driven cavity at Re 1000 with shifting A = 20 the
+  whole fluid drifted +6.5% in 6.5 s before the density guard stopped the run; a fluid at rest under gravity
+  sits at g H / (2 c0^2), 0.1-0.2% in the bundled tanks). summary.json warns past `DENSITY_DRIFT_WARN`;
 - `interior_kernel_sum_error`: max |c_a - 1| over the same particles: the summation density the current
   arrangement implies (ISPH's density at the next step), the same definition for both solvers, so it
   measures the disorder of the arrangement, whatever density the solver integrates (WCSPH's continuity
@@ -54,8 +59,11 @@ from taichi_sph.sph.particles import np_float
 # repulsion fades (the cubic spline's |grad W| peaks at 2h/3 and vanishes at r = 0): the default dam
 # break reaches 0.003 dx (WCSPH) and 0.001 dx (ISPH). 0.5 dx is also issue 15's acceptance bound.
 CLUMPING_DX = 0.5
+# |interior_density_drift| past this is warned of: a weakly compressible fluid's mean density departs from rho0 by
+# about Ma^2 / 2 (0.5% at c0 = 10 U) and by g H / (2 c0^2) under gravity (0.1-0.2% in the bundled tanks)
+DENSITY_DRIFT_WARN = 0.02
 ORDER_COLUMNS = ["min_pair_distance_dx", "min_wall_distance_dx", "void_particles", "free_surface_fraction",
-                 "interior_density_error", "interior_kernel_sum_error"]
+                 "interior_density_error", "interior_density_drift", "interior_kernel_sum_error"]
 _FAR = 1e30
 
 
@@ -289,6 +297,7 @@ class OrderProbe:
                 "void_particles": int(p["void"].sum()),
                 "free_surface_fraction": float(p["free_surface"].sum()) / n if n else 0.0,
                 "interior_density_error": float(np.abs(p["rho"][full] / self.rho0 - 1.0).max()) if full.any() else None,
+                "interior_density_drift": float(np.mean(p["rho"][full] / self.rho0 - 1.0)) if full.any() else None,
                 "interior_kernel_sum_error": float(np.abs(p["kernel_sum"][full] - 1.0).max()) if full.any() else None}
 
 
@@ -311,6 +320,8 @@ class ParticleOrderLog:
     outputs: int = 0
     interior_density_error: float | None = None
     interior_kernel_sum_error: float | None = None
+    density_drift: float | None = None  # the signed interior_density_drift of largest magnitude
+    density_drift_t: float | None = None
 
     def record(self, t: float, row: dict) -> None:
         """Fold one output row (OrderProbe.measure) into the extremes."""
@@ -336,6 +347,9 @@ class ParticleOrderLog:
             value, worst = row.get(key), getattr(self, key)
             if value is not None and (worst is None or value > worst):
                 setattr(self, key, value)
+        drift = row.get("interior_density_drift")
+        if drift is not None and (self.density_drift is None or abs(drift) > abs(self.density_drift)):
+            self.density_drift, self.density_drift_t = drift, t
 
     def summary(self) -> dict:
         """summary.json `particle_order`."""
@@ -345,10 +359,11 @@ class ParticleOrderLog:
                 "void_outputs": self.void_outputs, "outputs": self.outputs,
                 "free_surface_fraction_max": self.surface_fraction_max,
                 "free_surface_fraction_final": self.surface_fraction_final,
-                "interior_kernel_sum_error_max": self.interior_kernel_sum_error}
+                "interior_kernel_sum_error_max": self.interior_kernel_sum_error,
+                "interior_density_drift_extreme": self.density_drift, "interior_density_drift_t": self.density_drift_t}
 
     def warnings(self) -> list[str]:
-        """One line each for a void and for clumping, if they appeared."""
+        """One line each for a void, for clumping and for a drift of the mean density, if they appeared."""
         out = []
         if self.first_void_t is not None:
             out.append(f"particle order: void at t = {self.first_void_t:.4g} s (interior particles with a kernel sum "
@@ -357,4 +372,9 @@ class ParticleOrderLog:
         if self.first_clump_t is not None:
             out.append(f"particle order: clumping at t = {self.first_clump_t:.4g} s (fluid particles closer than "
                        f"{self.clumping_dx:g} dx; closest {self.min_pair:.3g} dx at t = {self.min_pair_t:.4g} s)")
+        if self.density_drift is not None and abs(self.density_drift) > DENSITY_DRIFT_WARN:
+            out.append(f"particle order: the interior fluid's mean density drifted {100 * self.density_drift:+.2g}% "
+                       f"(at t = {self.density_drift_t:.4g} s; more than {100 * DENSITY_DRIFT_WARN:g}%): the density "
+                       f"no longer follows the particles' volumes (WCSPH's continuity density with particle shifting "
+                       f"does not see the shift's volume change; try shifting off or `wcsph.density: summation`)")
         return out
