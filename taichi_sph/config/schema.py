@@ -69,7 +69,11 @@ class Fluid:
                                    "for a quadratic velocity on the lattice at any h / dx (quintic at h = dx: the plain form is "
                                    "0.6% low, a decay-rate error that no resolution removes), or 'renormalised': WCSPH only, over each "
                                    "particle's own second moment (physics/momentum.py renormalised_laplacian; ISPH takes "
-                                   "'normalised' for it)", choices=("morris", "normalised", "renormalised"))
+                                   "'normalised' for it), or 'consistent': WCSPH only, 'renormalised' of the velocity "
+                                   "differences less their linear part <grad v>_a r_ab (an extra pass for the renormalised "
+                                   "velocity gradient; physics/momentum.py consistent_velocity_difference; Fatehi & "
+                                   "Manzari 2011): no first-order error on a disordered arrangement (ISPH takes 'normalised')",
+                          choices=("morris", "normalised", "renormalised", "consistent"))
     background_pressure: float = opt(0.0, "constant added to the equation of state (p_b); keeps pressure positive in closed "
                                           "flows; for ISPH the ambient pressure at a free surface and the mean pressure "
                                           "in closed boxes", unit="Pa", minimum=0.0)

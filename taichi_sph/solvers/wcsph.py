@@ -23,6 +23,7 @@ from taichi_sph.physics.density import (
     renormalised_gradient,
 )
 from taichi_sph.physics.momentum import (
+    consistent_velocity_difference,
     corrected_pressure_gradient,
     corrected_symmetric_pressure_gradient,
     difference_pressure_gradient,
@@ -96,6 +97,8 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
             self.adami_wall_pass(serial)
         if ti.static(self.features.density_diffusion == "antuono"):
             self.density_gradient_pass(serial)
+        if ti.static(self.consistent_laplacian):
+            self.velocity_gradient_pass(serial)
         if ti.static(self.features.surface_scaled_pressure):
             self.scaled_pressure_pass(serial)
         if ti.static(self.corrected_symmetric):
@@ -235,6 +238,8 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                                            self.alpha, self.beta, grad_w)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
+                if ti.static(self.consistent_laplacian):
+                    v_visc = consistent_velocity_difference(v_visc, self.grad_v[a], r_ab)
                 visc = morris_laminar_viscosity(m_b, self.nu, sums.rho_a, rho_b, v_visc, r_ab, r2, self.eta2, grad_w)
                 if ti.static(self.renormalised_laplacian):
                     sums.visc += visc

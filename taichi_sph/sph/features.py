@@ -23,7 +23,7 @@ class Features:
     gravity: bool
     central_force: bool
     laminar_viscosity: bool
-    laplacian: str                # morris | normalised | renormalised (the laminar viscosity's)
+    laplacian: str                # morris | normalised | renormalised | consistent (the laminar viscosity's)
     artificial_viscosity: bool
     density: str                  # continuity | summation (WCSPH); ISPH always uses summation for its source
     density_diffusion: str        # none | molteni | fourtakas | antuono
@@ -63,7 +63,9 @@ class Features:
             gravity=cfg.has_gravity,
             central_force=cfg.central_force.omega > 0.0,
             laminar_viscosity=cfg.fluid.nu > 0.0,
-            laplacian=cfg.fluid.laplacian,
+            # ISPH takes 'normalised' for WCSPH's per-particle forms (solvers/base.py)
+            laplacian=("normalised" if cfg.solver == "isph" and cfg.fluid.laplacian in ("renormalised", "consistent")
+                       else cfg.fluid.laplacian),
             artificial_viscosity=(alpha > 0.0 or beta > 0.0),
             density=wc.density if cfg.solver == "wcsph" else "summation",
             density_diffusion=diffusion,
