@@ -196,10 +196,11 @@ def test_cavity_metric_refuses_another_reynolds_number():
 
 
 # ----------------------------------------------------------------------------- short real runs
-def run(cfg):
+def run(cfg, allowed: tuple[str, ...] = ()):
+    """The run, ok and with no warning but those starting with one of `allowed`."""
     res = Simulation(cfg, None, render=False, quiet=True).run()
     assert res.summary["status"] == "ok", res.summary.get("instability")
-    assert not res.summary["warnings"]
+    assert not [w for w in res.summary["warnings"] if not w.startswith(allowed)]
     return res
 
 
@@ -227,8 +228,12 @@ def test_poiseuille_coarse_start_up_follows_the_series():
 def test_cavity_coarse_run_approaches_ghia():
     """nx = 20 to t = 5 (4300 steps, the last 0.5 s pooled). Measured centreline RMS 0.027 (u 0.022,
     v 0.032) against Ghia et al.; at t = 0.2 it is 0.15 (the vortex not yet formed), so the bound 0.05
-    needs the recirculation set up by moving-wall particles and no-slip walls."""
-    res = run(scene("cavity_2d", "particles.dx=0.05", "time.t_end=5.0", "output.every=0.05"))
+    needs the recirculation set up by moving-wall particles and no-slip walls. WCSPH's continuity density does not
+    see the shift's volume change: at this coarse spacing the fluid's mean density drifts +4% by t = 5 (at the
+    scene's dx 0.02, -0.4% by t = 10), which the run warns of; kept below 6% here."""
+    res = run(scene("cavity_2d", "particles.dx=0.05", "time.t_end=5.0", "output.every=0.05"),
+              allowed=("particle order: the interior fluid's mean density drifted",))
+    assert abs(res.summary["particle_order"]["interior_density_drift_extreme"]) < 0.06
     e = res.summary["errors"]
     assert e["centerline_rms"] < 0.05
     assert e["centerline_rms_u"] < 0.05 and e["centerline_rms_v"] < 0.05
