@@ -140,7 +140,8 @@ class ISPHDeviceLoop:
         self.correct_and_move_pass(self.step_dt())
         ti.loop_config(serialize=True)
         for _ in range(1):
-            self.clock.t[None] += self.clock.dt[None]
+            if self.clock.live[None]:
+                self.clock.t[None] += self.clock.dt[None]
 
     @ti.kernel
     def shift_on_clock(self):
