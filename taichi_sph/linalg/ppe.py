@@ -265,6 +265,40 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         self.last_iterations = int(state[ITERATIONS])
         return int(state[ITERATIONS]), float(state[RESIDUAL]), bool(state[PINNED])
 
+    def write_limits(self) -> None:
+        """Tolerance and max_iterations into `progress` (when changed)."""
+        limits = [float(self.tolerance), float(self.max_iterations)]
+        if limits != self.limits_sent:
+            self.progress[TOLERANCE], self.progress[MAX_ITERATIONS] = limits
+            self.limits_sent = limits
+
+    def launch_solve(self, neumann_level: float, iterations: int) -> None:
+        """A solve's start and `iterations` iterations, no read-back (a batch of steps: solvers/isph_loop.py);
+        iterations after the stopping test said done are empty. Needs the loop schedule decided."""
+        serial = bool(self.serial)
+        self.begin_solve(neumann_level)
+        if self.solver == "cg":
+            self.cg_start(serial)
+        elif self.solver == "mgcg":
+            self.mg.assemble(serial)
+            self.mgcg_iteration(serial)  # the start
+        iterate = {"mgcg": self.mgcg_iteration, "cg": self.cg_iteration, "jacobi": self.jacobi_iteration}[self.solver]
+        for _ in range(iterations):
+            iterate(serial)
+
+    def finish_solve(self, neumann_level: float):
+        """Iterate a launched solve to its end, `check_every` iterations between read-backs, then `end_solve`.
+        Returns the last read-back (`read_state`)."""
+        serial = bool(self.serial)
+        iterate = {"mgcg": self.mgcg_iteration, "cg": self.cg_iteration, "jacobi": self.jacobi_iteration}[self.solver]
+        state = self.read_state()
+        while state[DONE] == 0.0:
+            for _ in range(self.check_every):
+                iterate(serial)
+            state = self.read_state()
+        self.end_solve(neumann_level)
+        return state
+
     def first_batch(self) -> int:
         """Iterations launched before the first read-back: the last solve's count (a time step's solve needs about
         as many as the previous one's, a few more or less), at least `check_every`. A solve that needs as many
