@@ -362,8 +362,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
     # -- reporting ------------------------------------------------------------------------------------
     def extra_summary(self) -> dict:
         """`ppe` (iterations, residuals, settings), `ppe_warnings`, the kinematic wall condition's count and
-        `step_loop` (device: dt and t on the device, solvers/isph_loop.py; host: dt from a stats read-back)."""
-        return {**ppe_summary(self), **self.kinematic_walls_summary(), "step_loop": self.step_loop}
+        `step_loop` (device: dt and t on the device, solvers/isph_loop.py; host: dt from a stats read-back) and
+        `ppe_budget_stalls` (device: solves of a batch of steps that used up their iteration budget)."""
+        return {**ppe_summary(self), **self.kinematic_walls_summary(), "step_loop": self.step_loop,
+                "ppe_budget_stalls": self.ppe_budget_stalls}
 
     def extra_timeseries(self) -> dict:
         """Iterations and relative residual of the last PPE solve."""

@@ -5,12 +5,18 @@ dt rule in Python (f64) and passed dt to each kernel. Here one kernel (`open_dev
 evaluates the same rule on the device in f64 (every constant it uses is an f64 field value, so the arithmetic is
 the host's operation for operation: the dts are bit-identical), cuts dt to land on the call's t_end, ramps gravity
 at t and keeps dt, the uncut dt (the PPE source's relaxation time) and t in the clock's f64 fields; the step's
-kernels read dt there. The host learns dt and t with the PPE solve's own read-back of its stopping state (the
-solve's state and the clock in one transfer), so a step costs one read-back (the solve's; more when the solve
-needs more than the last solve's iteration count) instead of two.
+kernels read dt there.
 
-Not yet here (issue 24 item 4): a PPE iteration budget per step with a device-side stall flag, so that a batch
-of steps needs no read-back at all. And with `float64: false` (an f32, rebased clock) ISPH stays host-stepped:
+`advance` launches its steps in batches with no read-back between them (`launch_batch`, issue 24 item 4): each
+step's passes test the clock's `live` flag (0 for a step past t_stop or t_end, or after a stalled solve), each
+solve launches an iteration budget (the most of the last 4 solves' counts + check_every) and the device-side
+stopping test empties the iterations after convergence, so the result is the one-step-at-a-time result bit for
+bit. Each step's dt, dt limit, PPE iterations, residual and pinned flag go to the `records` field; the batch
+reads back once at its end (the solve state, the clock, the stall flag and the records). A solve that used up
+its budget sets the stall flag: the rest of its step and every later step of the batch are skipped, and the host
+finishes that solve (read-backs every check_every, as `MatrixFreePPE.solve`) and its step (`ppe_budget_stalls`
+counts these). `step` and the loop-schedule probe's steps stay single steps (`device_step`): one read-back, the
+solve's, which also carries dt and t. With `float64: false` (an f32, rebased clock) ISPH stays host-stepped:
 the f32 clock cannot reproduce the host's f64 dt rule.
 """
 
