@@ -115,3 +115,18 @@ def test_a_batch_reads_back_once():
         dts = solver.advance(5)
     assert len(dts) == 5 and solver.ppe_budget_stalls <= 1
     assert traffic.readbacks == 1
+
+
+def test_batches_with_mgcg_and_continuity_density_equal_single_steps():
+    """The multigrid solve (its hierarchy assembled again in a skipped step: the same system) and the continuity
+    density with the explicit step force, in batches: the single-step run bit for bit."""
+    runs = []
+    for batch in (True, False):
+        solver = dam_break("gravity_ramp=0.02", "isph.ppe.solver=mgcg", "isph.density=continuity",
+                           "isph.step_force=explicit")
+        solver.prepare()
+        if not batch:
+            solver.can_batch = lambda: False
+        dts = solver.advance(1000, 0.05, 0.12) + solver.advance(1000, math.inf, 0.12)
+        runs.append(((dts, solver.t, solver.iterations, solver.residuals, solver.builds), by_id(solver)))
+    assert_same_run(*runs)
