@@ -76,7 +76,7 @@ def run_to(loop: str, budget: int | None = None, batch: bool = True):
             solver.can_batch = lambda: False
     dts = solver.advance(1000, 0.07, 0.2) + solver.advance(1000, math.inf, 0.2)
     return solver, (dts, solver.t, solver.step_count, solver.last_dt_limit, solver.iterations, solver.residuals,
-                    solver.builds, solver.pure_neumann_steps), by_id(solver)
+                    solver.builds, solver.pure_neumann_steps, solver.stats.to_numpy().tolist()), by_id(solver)
 
 
 def assert_same_run(a, b):

@@ -29,6 +29,7 @@ import taichi as ti
 
 from taichi_sph.config.schema import AUTO
 from taichi_sph.linalg.ppe_slots import DONE, ITERATIONS, PINNED, RESIDUAL
+from taichi_sph.scene.bodies import FLUID
 from taichi_sph.solvers.clock import DT_LIMITS
 from taichi_sph.sph.precision import wide_fields
 
@@ -186,13 +187,17 @@ class ISPHDeviceLoop:
     def open_batch_step(self, i: ti.i32, rebuild: ti.i32):
         """Step i of a batch: live = 1 when it runs (i == 0 or t < t_stop, t < t_end, and no solve of the batch
         stalled); then, as `open_device_step`, its dt and the body force at t. The neighbour build's gate."""
-        self.stats_pass()  # (a skipped step reduces the same stats again)
         ti.loop_config(serialize=True)
         for _ in range(1):
-            live = self.clock.open_step(i)
-            if self.stalled[None] != 0.0:
-                live = 0
+            if self.clock.open_step(i) and self.stalled[None] != 0.0:
                 self.clock.live[None] = 0
+        self.reset_stats_live()  # the stats of a step that runs (a skipped one keeps the last step's)
+        for a in range(self.n):
+            if self.live() and self.particles.kind[a] == FLUID:
+                self.accumulate_stats(a)
+        ti.loop_config(serialize=True)
+        for _ in range(1):
+            live = self.clock.live[None]
             if live:
                 dt_free = self.free_surface_dt_rule()
                 self.dt_free_field[None] = dt_free
