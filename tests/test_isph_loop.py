@@ -63,3 +63,70 @@ def test_the_loops_constants_are_not_checkpoint_state():
     solver = dam_break()
     fields, arrays, _ = solver.state_items()
     assert not any(k.split(".")[-1] in solver.transient_state for k in (*fields, *arrays))
+
+
+def run_to(loop: str, budget: int | None = None, batch: bool = True):
+    """The dam break with a ramp to t = 0.2 (an output time at 0.07, the last step cut to land on 0.2)."""
+    solver = dam_break("gravity_ramp=0.02")
+    solver.step_loop = loop
+    solver.prepare()
+    if loop == "device":
+        solver.budget_override = budget
+        if not batch:
+            solver.can_batch = lambda: False
+    dts = solver.advance(1000, 0.07, 0.2) + solver.advance(1000, math.inf, 0.2)
+    return solver, (dts, solver.t, solver.step_count, solver.last_dt_limit, solver.iterations, solver.residuals,
+                    solver.builds, solver.pure_neumann_steps, solver.stats.to_numpy().tolist()), by_id(solver)
+
+
+def assert_same_run(a, b):
+    assert a[0] == b[0]
+    for key in ("x", "v", "p"):
+        np.testing.assert_array_equal(a[1][key], b[1][key], err_msg=key)
+
+
+def test_a_batch_of_steps_equals_single_steps_bit_for_bit():
+    """advance in batches (no read-back between steps) = one device step at a time = the host path, including
+    an output time inside and the cut last step; a solve that used up its budget (the first: no history) is
+    finished by the host."""
+    batched, *run = run_to("device")
+    _, *single = run_to("device", batch=False)
+    _, *host = run_to("host")
+    assert_same_run(run, single)
+    assert_same_run(run, host)
+    assert abs(run[0][1] - 0.2) < 1e-12 and len(run[0][0]) > 5
+    assert batched.ppe_budget_stalls >= 1
+
+
+def test_stalled_solves_are_finished_by_the_host_bit_for_bit():
+    """A budget of 1 iteration: every solve stalls its batch; the host finishes each, the same run."""
+    stalled, *run = run_to("device", budget=1)
+    _, *single = run_to("device", batch=False)
+    assert_same_run(run, single)
+    assert stalled.ppe_budget_stalls == stalled.step_count
+
+
+def test_a_batch_reads_back_once():
+    """Five steps between two checks: one read-back (the batch's), none a step."""
+    solver = dam_break()
+    solver.prepare()
+    solver.advance(4)
+    with count_host_traffic() as traffic:
+        dts = solver.advance(5)
+    assert len(dts) == 5 and solver.ppe_budget_stalls <= 1
+    assert traffic.readbacks == 1
+
+
+def test_batches_with_mgcg_and_continuity_density_equal_single_steps():
+    """The multigrid solve (its hierarchy assembled again in a skipped step: the same system) and the continuity
+    density with the explicit step force, in batches: the single-step run bit for bit."""
+    runs = []
+    for batch in (True, False):
+        solver = dam_break("gravity_ramp=0.02", "isph.ppe.solver=mgcg", "isph.density=continuity",
+                           "isph.step_force=explicit")
+        solver.prepare()
+        if not batch:
+            solver.can_batch = lambda: False
+        dts = solver.advance(1000, 0.05, 0.12) + solver.advance(1000, math.inf, 0.12)
+        runs.append(((dts, solver.t, solver.iterations, solver.residuals, solver.builds), by_id(solver)))
+    assert_same_run(*runs)

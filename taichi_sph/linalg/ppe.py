@@ -106,6 +106,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         self.wide = wide
         self.progress, = wide_fields(wide, 9)  # a tree of its own (sph/precision.py: Vulkan's f64 packing)
         self.limits_sent = [math.nan, math.nan]  # (tolerance, max_iterations) as last written to `progress`
+        self.step_live, self.step_gated = None, False  # the owning solver's step flag (`gate_steps`)
         self.last_iterations = 0  # the last solve's iteration count (`first_batch`)
         self.sums = RowSums(n, self.scalars, 3)  # every reduction over the particles (fixed order on the CPU)
         self.rows = PackedRows(nsearch, n, max_neighbors, self.sums)  # the pair coefficients
@@ -138,8 +139,22 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
     # -- the device-side state of a solve ---------------------------------------------------------------
     @ti.func
     def live(self):
-        """1 while the solve iterates, 0 once the device-side stopping test said converged (or max_iterations)."""
-        return 1 - ti.cast(self.progress[DONE], ti.i32)
+        """1 while the solve iterates, 0 once the device-side stopping test said converged (or max_iterations),
+        or in a step a batch of steps skips (`step_open`)."""
+        return (1 - ti.cast(self.progress[DONE], ti.i32)) * self.step_open()
+
+    def gate_steps(self, live) -> None:
+        """Make each solve test `live` (an i32 field of shape ()) first: call before the first launch."""
+        self.step_live, self.step_gated = live, True
+
+    @ti.func
+    def step_open(self):
+        """The owning solver's step flag (`step_live`, an i32 field of shape (): ISPH's clock.live, 0 in a step a
+        batch skips, solvers/isph_loop.py), or 1 without one: a skipped step's solve changes nothing."""
+        step = 1
+        if ti.static(self.step_gated):
+            step = self.step_live[None]
+        return step
 
     @ti.func
     def check_convergence(self):
@@ -173,23 +188,26 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         """The solve's start on the device: no unknown -> done; no Dirichlet particle -> pinned (b projected onto
         the range of A, zero mean, |b|^2 recomputed); |b| = 0 -> p = 0 (or the level at pinned) and done.
         (TOLERANCE and MAX_ITERATIONS are written by the host: `solve`.)"""
-        self.progress[STARTING] = 1.0  # mgcg: the first launch of `mgcg_iteration` is CG's start
-        for s in ti.static((DONE, ITERATIONS, PINNED, TRIVIAL)):
-            self.progress[s] = 0.0
-        self.progress[RESIDUAL] = 0.0
-        if self.scalars[N_UNKNOWN] == 0.0:
-            self.progress[DONE] = 1.0
-        elif self.scalars[N_DIRICHLET] == 0.0:
-            self.progress[PINNED] = 1.0
+        step = self.step_open()
+        if step:
+            self.progress[STARTING] = 1.0  # mgcg: the first launch of `mgcg_iteration` is CG's start
+            for s in ti.static((DONE, ITERATIONS, PINNED, TRIVIAL)):
+                self.progress[s] = 0.0
+            self.progress[RESIDUAL] = 0.0
+            if self.scalars[N_UNKNOWN] == 0.0:
+                self.progress[DONE] = 1.0
+            elif self.scalars[N_DIRICHLET] == 0.0:
+                self.progress[PINNED] = 1.0
         mean = self.scalars[SUM_B] / ti.max(self.scalars[N_UNKNOWN], 1.0)
-        self.sums.add_live(self.mean_free_rhs_row, (BB,), False, mean, ti.cast(self.progress[PINNED], ti.i32))
-        norm_b = ti.sqrt(ti.cast(self.scalars[BB], self.wide))
-        self.progress[NORM_B] = norm_b
-        if self.progress[DONE] == 0.0 and norm_b == 0.0:  # the solution is p = 0 (or the level)
-            self.progress[DONE] = 1.0
-            self.progress[TRIVIAL] = 1.0
+        self.sums.add_live(self.mean_free_rhs_row, (BB,), False, mean, ti.cast(self.progress[PINNED], ti.i32) * step)
+        if step:
+            norm_b = ti.sqrt(ti.cast(self.scalars[BB], self.wide))
+            self.progress[NORM_B] = norm_b
+            if self.progress[DONE] == 0.0 and norm_b == 0.0:  # the solution is p = 0 (or the level)
+                self.progress[DONE] = 1.0
+                self.progress[TRIVIAL] = 1.0
         value = level * ti.cast(self.progress[PINNED], float)
-        trivial = ti.cast(self.progress[TRIVIAL], ti.i32)
+        trivial = ti.cast(self.progress[TRIVIAL], ti.i32) * step
         for a in range(self.n):  # constant loop ends throughout (linalg/reduction.py says why)
             if trivial and self.role[a] == UNKNOWN:
                 self.p[a] = value
@@ -204,7 +222,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
     @ti.kernel
     def end_solve(self, level: float):
         """Pinned systems (not trivially solved): fix the free constant, the unknowns' mean pressure becomes `level`."""
-        shift_it = ti.cast(self.progress[PINNED] * (1.0 - self.progress[TRIVIAL]), ti.i32)
+        shift_it = ti.cast(self.progress[PINNED] * (1.0 - self.progress[TRIVIAL]), ti.i32) * self.step_open()
         self.sums.add_live(self.pressure_row, (SUM_P,), False, 0.0, shift_it)
         shift = level - self.scalars[SUM_P] / ti.max(self.scalars[N_UNKNOWN], 1.0)
         for a in range(self.n):
@@ -246,6 +264,40 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         self.end_solve(neumann_level)
         self.last_iterations = int(state[ITERATIONS])
         return int(state[ITERATIONS]), float(state[RESIDUAL]), bool(state[PINNED])
+
+    def write_limits(self) -> None:
+        """Tolerance and max_iterations into `progress` (when changed)."""
+        limits = [float(self.tolerance), float(self.max_iterations)]
+        if limits != self.limits_sent:
+            self.progress[TOLERANCE], self.progress[MAX_ITERATIONS] = limits
+            self.limits_sent = limits
+
+    def launch_solve(self, neumann_level: float, iterations: int) -> None:
+        """A solve's start and `iterations` iterations, no read-back (a batch of steps: solvers/isph_loop.py);
+        iterations after the stopping test said done are empty. Needs the loop schedule decided."""
+        serial = bool(self.serial)
+        self.begin_solve(neumann_level)
+        if self.solver == "cg":
+            self.cg_start(serial)
+        elif self.solver == "mgcg":
+            self.mg.assemble(serial)
+            self.mgcg_iteration(serial)  # the start
+        iterate = {"mgcg": self.mgcg_iteration, "cg": self.cg_iteration, "jacobi": self.jacobi_iteration}[self.solver]
+        for _ in range(iterations):
+            iterate(serial)
+
+    def finish_solve(self, neumann_level: float):
+        """Iterate a launched solve to its end, `check_every` iterations between read-backs, then `end_solve`.
+        Returns the last read-back (`read_state`)."""
+        serial = bool(self.serial)
+        iterate = {"mgcg": self.mgcg_iteration, "cg": self.cg_iteration, "jacobi": self.jacobi_iteration}[self.solver]
+        state = self.read_state()
+        while state[DONE] == 0.0:
+            for _ in range(self.check_every):
+                iterate(serial)
+            state = self.read_state()
+        self.end_solve(neumann_level)
+        return state
 
     def first_batch(self) -> int:
         """Iterations launched before the first read-back: the last solve's count (a time step's solve needs about

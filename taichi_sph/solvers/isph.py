@@ -99,6 +99,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         # largest predictor acceleration |g + viscous| of the last step: the force limit of `isph.step_force: explicit`
         self.explicit_step_force = ic.step_force == "explicit"
         self.explicit_acc = ti.field(float, shape=())
+        self.ppe.gate_steps(self.clock.live)  # a step a batch skips skips its solve too
         self.init_device_loop()  # dt and t on the device (solvers/isph_loop.py)
         if self.step_loop == "device":
             self.ppe.read_state = self.read_solve_state
@@ -115,9 +116,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         With `isph.step_force: explicit` also max |a*| (explicit_acc, the next step's force limit)."""
         P = self.particles
         if ti.static(self.explicit_step_force):
-            self.explicit_acc[None] = 0.0  # (a serial task before the loop: no host write a step)
+            if self.live():  # (a step a batch skips: live 0, isph_loop.py)
+                self.explicit_acc[None] = 0.0  # (a serial task before the loop: no host write a step)
         for a in range(self.n):
-            if P.kind[a] == FLUID:
+            if self.live() and P.kind[a] == FLUID:
                 xa = P.x[a]
                 sums = ti.Struct(va=P.v[a], acc=self.body_force(xa))
                 if ti.static(self.features.laminar_viscosity or self.features.artificial_viscosity):
@@ -127,7 +129,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 if ti.static(self.explicit_step_force):
                     ti.atomic_max(self.explicit_acc[None], acc.norm())
         for a in range(self.n):
-            if P.kind[a] == FLUID:
+            if self.live() and P.kind[a] == FLUID:
                 P.v[a] += dt * P.acc[a]
 
     @ti.func
@@ -159,11 +161,12 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         """Coefficients, diagonal and right side of the unknown particles' rows (see the module doc)."""
         P = self.particles
         E = self.ppe
-        for s in ti.static((BB, SUM_B, N_UNKNOWN)):
-            E.scalars[s] = 0.0
-        E.rows.plan(E.role, UNKNOWN)
+        if self.live():
+            for s in ti.static((BB, SUM_B, N_UNKNOWN)):
+                E.scalars[s] = 0.0
+        E.rows.plan(E.role, UNKNOWN)  # (a skipped step plans the same rows again: role and counts are unchanged)
         for a in range(self.n):
-            if E.role[a] == UNKNOWN:
+            if self.live() and E.role[a] == UNKNOWN:
                 xa = P.x[a]
                 vol_a = P.mass[a] / self.rho0
                 row = ti.Struct(va=P.v[a], vol_a=vol_a, body=self.body_force(xa), dt=dt, k=0, div_v=0.0, diag=0.0,
@@ -240,7 +243,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         free surface is dry and must not pull fluid)."""
         P = self.particles
         for a in range(self.n):
-            if P.kind[a] == WALL:
+            if self.live() and P.kind[a] == WALL:
                 P.p[a] = ti.max(P.p[a], self.p_background)
                 P.rho[a] = self.rho0
                 P.mass[a] = self.wall_mass
@@ -267,7 +270,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         back wall). Pressure keeps the bulk dx/2 off; `wall_cuts` counts the particles it had to stop."""
         P = self.particles
         for a in range(self.n):
-            if P.kind[a] == FLUID:
+            if self.live() and P.kind[a] == FLUID:
                 sums = ti.Struct(p_a=P.p[a], sum_dp=ti.Vector.zero(float, self.dim),
                                  moment=ti.Matrix.zero(float, self.dim, self.dim))
                 self.nsearch.for_each_neighbor(a, P.x, self.pressure_gradient_pair, sums)
@@ -286,7 +289,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         if ti.static(self.continuity):
             self.continuity_density.deform_by_motion(dt)
         for a in range(self.n):
-            if P.kind[a] == FLUID:
+            if self.live() and P.kind[a] == FLUID:
                 P.x[a] += dt * P.v[a]
                 if ti.static(self.features.reflecting):
                     self.reflect(a)
@@ -359,8 +362,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
     # -- reporting ------------------------------------------------------------------------------------
     def extra_summary(self) -> dict:
         """`ppe` (iterations, residuals, settings), `ppe_warnings`, the kinematic wall condition's count and
-        `step_loop` (device: dt and t on the device, solvers/isph_loop.py; host: dt from a stats read-back)."""
-        return {**ppe_summary(self), **self.kinematic_walls_summary(), "step_loop": self.step_loop}
+        `step_loop` (device: dt and t on the device, solvers/isph_loop.py; host: dt from a stats read-back) and
+        `ppe_budget_stalls` (device: solves of a batch of steps that used up their iteration budget)."""
+        return {**ppe_summary(self), **self.kinematic_walls_summary(), "step_loop": self.step_loop,
+                "ppe_budget_stalls": self.ppe_budget_stalls}
 
     def extra_timeseries(self) -> dict:
         """Iterations and relative residual of the last PPE solve."""

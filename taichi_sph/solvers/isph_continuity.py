@@ -26,7 +26,8 @@ class ContinuityDensity:
         """u = dt v (this step's move) at the positions before it."""
         P = self.solver.particles
         for a in range(self.solver.n):
-            self.displacement[a] = dt * P.v[a] if P.kind[a] == FLUID else ti.Vector.zero(float, self.solver.dim)
+            if self.solver.live():
+                self.displacement[a] = dt * P.v[a] if P.kind[a] == FLUID else ti.Vector.zero(float, self.solver.dim)
         self.deform()
 
     @ti.kernel
@@ -34,8 +35,9 @@ class ContinuityDensity:
         """u = the particle shift (computed, not yet applied): its divergence changes the volumes."""
         P = self.solver.particles
         for a in range(self.solver.n):
-            self.displacement[a] = (self.solver.shifting.shift[a] if P.kind[a] == FLUID
-                                    else ti.Vector.zero(float, self.solver.dim))
+            if self.solver.live():
+                self.displacement[a] = (self.solver.shifting.shift[a] if P.kind[a] == FLUID
+                                        else ti.Vector.zero(float, self.solver.dim))
         self.deform()
 
     @ti.func
@@ -45,7 +47,7 @@ class ContinuityDensity:
         S = self.solver
         P = S.particles
         for a in range(S.n):
-            if P.kind[a] == FLUID:
+            if S.live() and P.kind[a] == FLUID:
                 sums = ti.Struct(u_a=self.displacement[a], s=ti.Matrix.zero(float, S.dim, S.dim),
                                  moment=ti.Matrix.zero(float, S.dim, S.dim))
                 S.nsearch.for_each_neighbor(a, P.x, self.deformation_pair, sums)

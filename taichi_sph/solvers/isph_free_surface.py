@@ -46,47 +46,49 @@ class FreeSurfaceDetection:
         """Summation density, free-surface role and Dirichlet pressure (see the module doc)."""
         P = self.particles
         E = self.ppe
-        E.scalars[N_DIRICHLET] = 0.0
+        if self.live():  # (a step a batch skips: live 0, isph_loop.py)
+            E.scalars[N_DIRICHLET] = 0.0
         for a in range(self.n):
-            role = NOT_IN_PPE
-            if P.kind[a] == FLUID:
-                xa = P.x[a]
-                sums = ti.Struct(rho=P.mass[a] * self.kernel.w0, grad_c=ti.Vector.zero(float, self.dim),
-                                 moment=ti.Matrix.zero(float, self.dim, self.dim),
-                                 grad_w_moment=ti.Matrix.zero(float, self.dim, self.dim),
-                                 acc_sum=P.mass[a] * self.kernel.w0 * P.acc[a], w_fluid=P.mass[a] * self.kernel.w0)
-                self.nsearch.for_each_neighbor(a, P.x, self.free_surface_pair, sums)
-                rho, grad_c, moment, grad_w_moment = sums.rho, sums.grad_c, sums.moment, sums.grad_w_moment
-                acc_sum, w_fluid = sums.acc_sum, sums.w_fluid
-                # last step's acceleration, Shepard-averaged over the fluid neighbours: one particle's
-                # spike (a contact line, a near-singular gradient) must not become its own Dirichlet
-                # pressure, which spikes its next acceleration
-                acc = acc_sum / w_fluid
-                rho /= self.lattice_sum
-                self.rho_summation[a] = rho
-                # a fluid that fills its container at the start has no free surface to find (confinement)
-                open_surface = self.surface_possible[None] != 0
-                candidate = open_surface and rho < SURFACE_CANDIDATE * self.rho0
-                surface = open_surface and rho < self.surface_threshold * self.rho0
-                if not surface and candidate:
-                    cone = ti.Struct(outward=-grad_c.normalized(1e-12), surface=True)
-                    self.nsearch.for_each_neighbor(a, P.x, self.surface_cone_pair, cone)
-                    surface = cone.surface
-                    if ti.static(self.one_sided):
-                        if not surface and ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT:
-                            surface = projection_self_ratio(grad_c, moment, grad_w_moment,
-                                                            P.mass[a] / self.rho0) > self.one_sided_ratio
-                self.grad_p_estimate[a] = self.rho0 * (self.body_force(xa) - acc)
-                role = UNKNOWN
-                if surface:
-                    role = DIRICHLET
-                    P.p[a] = self.p_background + free_surface_pressure(self.rho0, self.surface_depth, grad_c,
-                                                                       self.body_force(xa), acc)
-                    ti.atomic_add(E.scalars[N_DIRICHLET], 1.0)
-                if candidate:  # (physics/free_surface.py) below it: floored at rho0
-                    rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
-                P.rho[a] = rho
-            E.role[a] = role
+            if self.live():
+                role = NOT_IN_PPE
+                if P.kind[a] == FLUID:
+                    xa = P.x[a]
+                    sums = ti.Struct(rho=P.mass[a] * self.kernel.w0, grad_c=ti.Vector.zero(float, self.dim),
+                                     moment=ti.Matrix.zero(float, self.dim, self.dim),
+                                     grad_w_moment=ti.Matrix.zero(float, self.dim, self.dim),
+                                     acc_sum=P.mass[a] * self.kernel.w0 * P.acc[a], w_fluid=P.mass[a] * self.kernel.w0)
+                    self.nsearch.for_each_neighbor(a, P.x, self.free_surface_pair, sums)
+                    rho, grad_c, moment, grad_w_moment = sums.rho, sums.grad_c, sums.moment, sums.grad_w_moment
+                    acc_sum, w_fluid = sums.acc_sum, sums.w_fluid
+                    # last step's acceleration, Shepard-averaged over the fluid neighbours: one particle's
+                    # spike (a contact line, a near-singular gradient) must not become its own Dirichlet
+                    # pressure, which spikes its next acceleration
+                    acc = acc_sum / w_fluid
+                    rho /= self.lattice_sum
+                    self.rho_summation[a] = rho
+                    # a fluid that fills its container at the start has no free surface to find (confinement)
+                    open_surface = self.surface_possible[None] != 0
+                    candidate = open_surface and rho < SURFACE_CANDIDATE * self.rho0
+                    surface = open_surface and rho < self.surface_threshold * self.rho0
+                    if not surface and candidate:
+                        cone = ti.Struct(outward=-grad_c.normalized(1e-12), surface=True)
+                        self.nsearch.for_each_neighbor(a, P.x, self.surface_cone_pair, cone)
+                        surface = cone.surface
+                        if ti.static(self.one_sided):
+                            if not surface and ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT:
+                                surface = projection_self_ratio(grad_c, moment, grad_w_moment,
+                                                                P.mass[a] / self.rho0) > self.one_sided_ratio
+                    self.grad_p_estimate[a] = self.rho0 * (self.body_force(xa) - acc)
+                    role = UNKNOWN
+                    if surface:
+                        role = DIRICHLET
+                        P.p[a] = self.p_background + free_surface_pressure(self.rho0, self.surface_depth, grad_c,
+                                                                           self.body_force(xa), acc)
+                        ti.atomic_add(E.scalars[N_DIRICHLET], 1.0)
+                    if candidate:  # (physics/free_surface.py) below it: floored at rho0
+                        rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
+                    P.rho[a] = rho
+                E.role[a] = role
 
     @ti.func
     def free_surface_pair(self, a, b, r_ab, sums: ti.template()):
