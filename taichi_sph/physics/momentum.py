@@ -10,7 +10,7 @@ tensile terms did on the dam break and the rotating square: docs/notes/momentum.
 
 import taichi as ti
 
-from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, moment_pair_term, renormalised_gradient
+from taichi_sph.physics.density import moment_pair_term, renormalised_gradient
 
 
 @ti.func
@@ -129,14 +129,13 @@ def renormalised_laplacian(sum_lap, moment: float, lattice_moment: float):
 def renormalised_velocity_gradient(sum_dv, moment):
     """<grad v>_a = S_a M_a^-1, S_a = sum_b V_b (v_b - v_a) (x) grad_a W_ab, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab:
     renormalised_gradient for each velocity component (exact for a linear v on any support; its conditioning rule,
-    tr M / dim in M's place where M is near singular)."""
+    tr M / dim in M's place where M is near singular): row i is (M^T)^-1 S_i."""
     dim = ti.static(moment.n)
-    scale = moment.trace() / dim
     grad = ti.Matrix.zero(float, dim, dim)
-    if scale > 1e-3:
-        grad = sum_dv / scale
-        if ti.abs(moment.determinant()) > MIN_MOMENT_DETERMINANT * scale ** dim:
-            grad = sum_dv @ moment.inverse()
+    for i in ti.static(range(dim)):
+        row = renormalised_gradient(ti.Vector([sum_dv[i, j] for j in ti.static(range(dim))]), moment)
+        for j in ti.static(range(dim)):
+            grad[i, j] = row[j]
     return grad
 
 

@@ -139,10 +139,16 @@ class ISPHDeviceLoop:
         self.stats_pass()
         ti.loop_config(serialize=True)
         for _ in range(1):
-            dt_free = self.free_surface_dt_rule()
-            self.dt_free_field[None] = dt_free
-            self.clock.set_dt(dt_free)
-            self.gravity_at_clock_time()
+            self.open_clock_step()
+
+    @ti.func
+    def open_clock_step(self):
+        """(In a serial task.) The step's dt from the free-surface rule, cut to land on t_end, the uncut one kept,
+        and the body force at t."""
+        dt_free = self.free_surface_dt_rule()
+        self.dt_free_field[None] = dt_free
+        self.clock.set_dt(dt_free)
+        self.gravity_at_clock_time()
 
     @ti.func
     def step_dt(self):
@@ -176,11 +182,16 @@ class ISPHDeviceLoop:
         """out = [the PPE's progress (9), t, dt, limit]: the solve's stopping state and the step's clock."""
         ti.loop_config(serialize=True)
         for _ in range(1):
-            for k in ti.static(range(STATE_CLOCK)):
-                out[k] = ti.cast(self.ppe.progress[k], ti.f64)
-            out[STATE_CLOCK] = self.clock.t[None]
-            out[STATE_CLOCK + 1] = self.clock.dt[None]
-            out[STATE_CLOCK + 2] = ti.cast(self.clock.limit[None], ti.f64)
+            self.write_solve_state(out)
+
+    @ti.func
+    def write_solve_state(self, out: ti.template()):
+        """out[:STATE_CLOCK + 3] = [the PPE's progress (9), t, dt, limit] (in a serial task)."""
+        for k in ti.static(range(STATE_CLOCK)):
+            out[k] = ti.cast(self.ppe.progress[k], ti.f64)
+        out[STATE_CLOCK] = self.clock.t[None]
+        out[STATE_CLOCK + 1] = self.clock.dt[None]
+        out[STATE_CLOCK + 2] = ti.cast(self.clock.limit[None], ti.f64)
 
     # -- a batch of steps (no read-back between them) ----------------------------------------------------
     @ti.kernel
@@ -199,10 +210,7 @@ class ISPHDeviceLoop:
         for _ in range(1):
             live = self.clock.live[None]
             if live:
-                dt_free = self.free_surface_dt_rule()
-                self.dt_free_field[None] = dt_free
-                self.clock.set_dt(dt_free)
-                self.gravity_at_clock_time()
+                self.open_clock_step()
             self.nsearch.gate[None] = live * rebuild
 
     @ti.kernel
@@ -242,11 +250,7 @@ class ISPHDeviceLoop:
         live and the stall flag back to their host-side values (1, 0)."""
         ti.loop_config(serialize=True)
         for _ in range(1):
-            for k in ti.static(range(STATE_CLOCK)):
-                out[k] = ti.cast(self.ppe.progress[k], ti.f64)
-            out[STATE_CLOCK] = self.clock.t[None]
-            out[STATE_CLOCK + 1] = self.clock.dt[None]
-            out[STATE_CLOCK + 2] = ti.cast(self.clock.limit[None], ti.f64)
+            self.write_solve_state(out)
             out[STALLED] = self.stalled[None]
             done = self.clock.done[None]
             out[DONE_STEPS] = ti.cast(done, ti.f64)

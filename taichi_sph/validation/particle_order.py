@@ -293,11 +293,12 @@ class OrderProbe:
         p = self.particles()
         n = len(p["x"])
         full = p["full_support"]
+        strain = p["rho"][full] / self.rho0 - 1.0  # the full-support particles' rho / rho0 - 1
         return {"min_pair_distance_dx": p["min_pair_distance_dx"], "min_wall_distance_dx": p["min_wall_distance_dx"],
                 "void_particles": int(p["void"].sum()),
                 "free_surface_fraction": float(p["free_surface"].sum()) / n if n else 0.0,
-                "interior_density_error": float(np.abs(p["rho"][full] / self.rho0 - 1.0).max()) if full.any() else None,
-                "interior_density_drift": float(np.mean(p["rho"][full] / self.rho0 - 1.0)) if full.any() else None,
+                "interior_density_error": float(np.abs(strain).max()) if full.any() else None,
+                "interior_density_drift": float(np.mean(strain)) if full.any() else None,
                 "interior_kernel_sum_error": float(np.abs(p["kernel_sum"][full] - 1.0).max()) if full.any() else None}
 
 
