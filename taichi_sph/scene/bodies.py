@@ -164,7 +164,8 @@ def wall_crossings(x: np.ndarray, kind: np.ndarray, cfg: Config) -> int:
     return count
 
 
-def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray,
+                     with_container: bool = False):
     """For each wall particle, the face of its wall body that it lies behind: unit normal n into the
     fluid and offset s, so that y . n - s is a point's signed distance to that face (rows of fluid
     particles are zero). wall_box: the inner face the particle is furthest outside of (a corner
@@ -177,6 +178,7 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
     dim = cfg.dim
     normal = np.zeros((len(x), dim))
     offset = np.zeros(len(x))
+    container = np.zeros(len(x), dtype=bool)
     unassigned = kind == WALL
     no_face = np.repeat(np.asarray(cfg.periodic, dtype=bool), 2)  # columns (lo_0, hi_0, lo_1, ...)
     for body in cfg.bodies:
@@ -208,7 +210,10 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
         idx = np.flatnonzero(unassigned)[inside_shell]
         normal[idx] = n[inside_shell]
         offset[idx] = s[inside_shell]
+        container[idx] = body.type == "wall_box"
         unassigned[idx] = False
+    if with_container:
+        return normal, offset, container
     return normal, offset
 
 

@@ -46,6 +46,8 @@ from taichi_sph.physics.shifting import (
 from taichi_sph.scene.bodies import FLUID
 from taichi_sph.scene.lattice import lattice_kernel_sum
 
+MAX_FACES = 3  # container faces a particle's support may meet (a 3D corner)
+
 
 @ti.data_oriented
 class ParticleShifting:
@@ -61,6 +63,7 @@ class ParticleShifting:
         self.threshold = cfg.isph.free_surface_threshold
         self.w_dx = float(solver.kernel.w_np(np.array([cfg.particles.dx]))[0])
         self.shift = solver.particles.add_vector()
+        self.mirror = cfg.shifting.walls == "mirror"
         # shifting.velocity_correction: the Taylor update of v (and of WCSPH's continuity density) for the shift
         self.correct = solver.features.shifting_correction
         self.correct_rho = self.correct and solver.name == "wcsph" and solver.features.density == "continuity"
@@ -83,14 +86,18 @@ class ParticleShifting:
         S = self.solver
         P = S.particles
         ksum = P.mass[a] / P.rho[a] * S.kernel.w0
+        if ti.static(self.mirrors_walls()):
+            images = self.mirror_images(a)
+            ksum += images.ksum
         S.nsearch.for_each_neighbor(a, P.x, self.kernel_sum_pair, ksum)
         return ksum
 
     @ti.func
     def kernel_sum_pair(self, a, b, r_ab, ksum: ti.template()):
-        """ksum += V_b W_ab."""
+        """ksum += V_b W_ab (a mirrored wall's particles: their images instead)."""
         P = self.solver.particles
-        ksum += P.mass[b] / P.rho[b] * self.solver.kernel.w(r_ab.norm())
+        if not self.is_mirrored(b):
+            ksum += P.mass[b] / P.rho[b] * self.solver.kernel.w(r_ab.norm())
 
     @ti.kernel
     def compute(self, dt: float, max_speed: float):
@@ -128,6 +135,11 @@ class ParticleShifting:
                                      ksum=P.mass[a] / P.rho[a] * S.kernel.w0, band=0, va=P.v[a], rho_a=P.rho[a],
                                      sum_dv=ti.Matrix.zero(float, S.dim, S.dim), sum_drho=ti.Vector.zero(float, S.dim),
                                      moment=ti.Matrix.zero(float, S.dim, S.dim))
+                    if ti.static(self.mirrors_walls()):
+                        images = self.mirror_images(a)
+                        sums.ksum += images.ksum
+                        sums.grad_sum += images.grad_sum
+                        sums.grad_c += images.grad_c
                     S.nsearch.for_each_neighbor(a, P.x, self.gradient_pair, sums)
                     grad_c, grad_sum, ksum, band = sums.grad_c, sums.grad_sum, sums.ksum, sums.band
                     if ti.static(self.keep_region):
@@ -159,9 +171,10 @@ class ParticleShifting:
         w = S.kernel.w(r)
         vol_b = P.mass[b] / P.rho[b]
         grad_w = S.kernel.grad_w(r_ab, r)
-        sums.ksum += vol_b * w
-        sums.grad_sum += vol_b * grad_w
-        sums.grad_c += lind_concentration_gradient_term(vol_b, w, self.w_dx, grad_w)
+        if not self.is_mirrored(b):
+            sums.ksum += vol_b * w
+            sums.grad_sum += vol_b * grad_w
+            sums.grad_c += lind_concentration_gradient_term(vol_b, w, self.w_dx, grad_w)
         if P.kind[b] == FLUID and r < S.support:
             sums.band = ti.max(sums.band, self.surface[b])
         if ti.static(self.correct):
@@ -170,6 +183,82 @@ class ParticleShifting:
                 sums.moment -= vol_b * r_ab.outer_product(grad_w)
                 if ti.static(self.correct_rho):
                     sums.sum_drho += vol_b * (P.rho[b] - sums.rho_a) * grad_w
+
+    def mirrors_walls(self) -> bool:
+        """`shifting.walls: mirror` on a solver with wall faces (read when the kernels compile)."""
+        return self.mirror and hasattr(self.solver, "wall_container")
+
+    @ti.func
+    def is_mirrored(self, b):
+        """Is b a particle of a container wall whose part the fluid's images take (`shifting.walls: mirror`)?"""
+        mirrored = False
+        if ti.static(self.mirrors_walls()):
+            P = self.solver.particles
+            mirrored = P.kind[b] != FLUID and self.solver.wall_container[b] == 1
+        return mirrored
+
+    @ti.func
+    def face_pair(self, a, b, r_ab, faces: ti.template()):
+        """Add a container wall neighbour's face (unit normal into the fluid, offset) to a's list unless known."""
+        S = self.solver
+        if self.is_mirrored(b):
+            normal, offset = S.wall_normal[b], S.wall_offset[b]
+            known = False
+            for k in ti.static(range(MAX_FACES)):
+                if k < faces.n:
+                    n_k = ti.Vector([faces.normals[k, d] for d in ti.static(range(S.dim))])
+                    if n_k.dot(normal) > 0.99 and ti.abs(faces.offsets[k] - offset) < 1e-3 * S.dx:
+                        known = True
+            if not known and faces.n < MAX_FACES:
+                for k in ti.static(range(MAX_FACES)):
+                    if k == faces.n:
+                        for d in ti.static(range(S.dim)):
+                            faces.normals[k, d] = normal[d]
+                        faces.offsets[k] = offset
+                faces.n += 1
+
+    @ti.func
+    def mirror_images(self, a):
+        """The container walls as the fluid's mirror: the kernel sum, sum V grad W and Lind's grad C of the images
+        of a and of its fluid neighbours in every product of the reflections in the faces its wall neighbours lie
+        behind. A free-slip wall's particles would add a part that depends on how the fluid rows sit against the
+        wall rows as they slide along it; the images move with the fluid."""
+        S = self.solver
+        P = S.particles
+        faces = ti.Struct(normals=ti.Matrix.zero(float, MAX_FACES, S.dim), offsets=ti.Vector.zero(float, MAX_FACES),
+                          n=0)
+        S.nsearch.for_each_neighbor(a, P.x, self.face_pair, faces)
+        state = ti.Struct(xa=P.x[a], ksum=0.0, grad_sum=ti.Vector.zero(float, S.dim),
+                          grad_c=ti.Vector.zero(float, S.dim), normals=faces.normals, offsets=faces.offsets,
+                          n_faces=faces.n)
+        if faces.n > 0:
+            self.mirror_pair(a, a, ti.Vector.zero(float, S.dim), state)
+            S.nsearch.for_each_neighbor(a, P.x, self.mirror_pair, state)
+        return state
+
+    @ti.func
+    def mirror_pair(self, a, b, r_ab, state: ti.template()):
+        """The images of fluid particle b (x_b = x_a - r_ab) in every combination of the faces."""
+        S = self.solver
+        P = S.particles
+        if P.kind[b] == FLUID:
+            x_b = state.xa - r_ab
+            vol_b = P.mass[b] / P.rho[b]
+            for mask in ti.static(range(1, 2 ** MAX_FACES)):
+                if mask < (1 << state.n_faces):
+                    y = x_b
+                    for k in ti.static(range(MAX_FACES)):
+                        if ti.static(mask & (1 << k)):
+                            n_k = ti.Vector([state.normals[k, d] for d in ti.static(range(S.dim))])
+                            y -= 2.0 * (y.dot(n_k) - state.offsets[k]) * n_k
+                    r = state.xa - y
+                    dist = r.norm()
+                    if dist < S.support:
+                        w = S.kernel.w(dist)
+                        grad_w = S.kernel.grad_w(r, dist)
+                        state.ksum += vol_b * w
+                        state.grad_sum += vol_b * grad_w
+                        state.grad_c += lind_concentration_gradient_term(vol_b, w, self.w_dx, grad_w)
 
     @ti.func
     def move_pass(self, serial: ti.template()):

@@ -1,6 +1,7 @@
 """WCSPH's and ISPH's kinematic wall condition (physics/walls.py) on a solver's wall faces."""
 
 # No `from __future__ import annotations`: Taichi reads the ti.func signatures.
+import numpy as np
 import taichi as ti
 
 from taichi_sph.physics.walls import kinematic_wall_condition
@@ -18,7 +19,10 @@ class KinematicWalls:
         if self.kinematic_walls:
             P = self.particles
             self.wall_clearance = clearance_dx * self.dx
-            normal, offset = wall_face_planes(self.cfg, arrays.x, arrays.kind)
+            normal, offset, container = wall_face_planes(self.cfg, arrays.x, arrays.kind, with_container=True)
+            if self.cfg.shifting.walls == "mirror":  # the faces the shift's grad C reflects the fluid in
+                self.wall_container = P.add_scalar(persistent=True, dtype=ti.i32)
+                self.wall_container.from_numpy(container.astype(np.int32))
             self.wall_normal = P.add_vector(persistent=True)
             self.wall_offset = P.add_scalar(persistent=True)
             self.wall_normal.from_numpy(normal.astype(np_float()))
