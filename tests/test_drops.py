@@ -72,9 +72,10 @@ def stretched_drop(solver, tmp_path, t_end, *overrides):
 # peak. The test bounds the peak over that spread and the median tightly.
 @pytest.mark.parametrize("solver, t_end, overrides, peak_bound, min_pair", [
     ("wcsph", 0.2, ("time.cfl=0.25",), 0.03, 0.5),
-    # ISPH, the whole scene (its tips are sharpest at the end): 0.0335 at h = 1.6 dx and cfl 0.05 (0.038 at
-    # 1.3 dx); isph.cfl 0.025: 0.0232 (dx 0.02); at the scene's dx 0.015 NaN at t = 0.335 s without
-    # isph.one_sided_ratio and isph.step_force: explicit, 0.0223 with the ratio alone, 0.0137 with both
+    # ISPH, the whole scene (its tips are sharpest at the end), with ISPH's defaults since session 20: peak 0.0190,
+    # median 0.0098, min pair 0.63 dx (the old keys blend 0.3, isph.cfl 0.025, one_sided_ratio 0.5, step_force
+    # explicit: 0.0205, 0.0088, 0.55 dx; before the shift's surface-band projection and blend 1.0 the scene went
+    # non-finite at t = 0.335 s without them)
     ("isph", 0.4, (), 0.035, 0.45),
 ])
 def test_stretched_drop(tmp_path, solver, t_end, overrides, peak_bound, min_pair):
@@ -122,9 +123,9 @@ def test_bundled_ellipse_table_matches_the_ode():
 def test_isph_steps_at_its_own_courant_number():
     """isph.cfl is ISPH's (a step on the flow speed), time.cfl WCSPH's (on the sound speed)."""
     path = bundled_configs_dir() / "oscillating_drop_2d.yaml"
-    assert load_config(path, ["solver=isph"]).cfl == 0.025
-    assert load_config(path, ["solver=wcsph"]).cfl == 0.05
-    assert load_config(path, ["solver=isph", "isph.cfl=null"]).cfl == 0.05
+    assert load_config(path, ["solver=isph", "isph.cfl=0.025"]).cfl == 0.025
+    assert load_config(path, ["solver=wcsph", "isph.cfl=0.025"]).cfl == 0.05
+    assert load_config(path, ["solver=isph"]).cfl == 0.05
 
 
 USER_DROP = """\
