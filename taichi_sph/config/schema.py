@@ -147,12 +147,13 @@ class Shifting:
                      choices=("skillen", "sun"))
     coefficient: float = opt(2.0, "A in the shift dr_a = -D grad C_a with D = A h U dt (U: see shifting.model)", minimum=0.0)
     max_shift: float = opt(0.1, "cap on |dr_a| per step, as a fraction of dx", positive=True)
-    walls: str = opt("mirror", "what grad C sees of a container wall (wall_box): 'mirror', the images of the fluid in the "
-                               "faces its support meets (a free-slip wall is the fluid's mirror; the images slide with "
-                               "the fluid), or 'particles', the wall particles, whose part depends on how the fluid rows "
-                               "sit against the fixed wall rows as they slide along them: on the standing wave that "
-                               "near-wall shift was ISPH's whole energy gain (+1.6% a period; mirror +0.2%, docs/isph.md). "
-                               "Other walls (wall_block) always use their particles", choices=("mirror", "particles"))
+    walls: str = opt("particles", "what grad C sees of a container wall (wall_box): its wall particles, or 'mirror' "
+                                  "(experimental), the images of the fluid in the faces the support meets: a free-slip "
+                                  "wall is the fluid's mirror, and the images slide with the fluid. On the standing wave "
+                                  "the wall particles' part (it depends on how a sliding fluid row sits against the wall "
+                                  "rows) is ISPH's whole energy gain, +1.6% a period, mirror +0.2%; but with the mirror "
+                                  "ISPH's dam_break_buchner_2d ends 'unstable' at the wall impact (docs/isph.md). Other "
+                                  "walls (wall_block) always use their particles", choices=("particles", "mirror"))
     velocity_correction: bool = opt(False, "Taylor correction after the shift: v_a += (grad v)_a . dr_a (and, with WCSPH's "
                                            "continuity density, rho_a += (grad rho)_a . dr_a), with the renormalised gradient "
                                            "(physics/shifting.py taylor_correction; Xu, Stansby & Laurence 2009, Lind et "
