@@ -19,6 +19,12 @@ def lind_concentration_gradient_term(vol_b: float, w: float, w_dx: float, grad_w
 
 
 @ti.func
+def mirror_image(y, normal, offset: float):
+    """y - 2 (y . n - s) n: the reflection of point y in the plane y . n = s (a free-slip wall face)."""
+    return y - 2.0 * (y.dot(normal) - offset) * normal
+
+
+@ti.func
 def tangential_part(dr, normal):
     """dr - (dr . n) n: the shift along a free surface of unit normal n."""
     return dr - dr.dot(normal) * normal

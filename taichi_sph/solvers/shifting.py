@@ -9,6 +9,11 @@ tangent to the surface, a particle with a surface particle within its support lo
 skillen with the outer-layer projection only: the second row up 3.9e-3 dx a step, the wave's energy +72% in
 0.3 s; docs/isph.md).
 
+With `shifting.walls: mirror` (an option) a container wall (wall_box) enters the kernel sum, its gradient and grad C as
+the images of the fluid in its faces rather than as its wall particles, whose part depends on how a fluid row sliding
+along the wall sits against the wall rows (`mirror_images`; docs/isph.md: on the standing wave that near-wall shift
+was ISPH's whole energy gain).
+
 With `shifting.velocity_correction` the shifted particle's velocity (and WCSPH's continuity density) is
 Taylor-corrected to its new position, v_a += <grad v>_a . dr_a with the renormalised gradient over fluid
 neighbours (physics/shifting.py taylor_correction); without it a particle keeps the velocity of the point it
@@ -37,6 +42,7 @@ import taichi as ti
 
 from taichi_sph.physics.shifting import (
     lind_concentration_gradient_term,
+    mirror_image,
     no_outward_part,
     renormalised_displacement,
     shifting_diffusion,
@@ -250,7 +256,7 @@ class ParticleShifting:
                     for k in ti.static(range(MAX_FACES)):
                         if ti.static(mask & (1 << k)):
                             n_k = ti.Vector([state.normals[k, d] for d in ti.static(range(S.dim))])
-                            y -= 2.0 * (y.dot(n_k) - state.offsets[k]) * n_k
+                            y = mirror_image(y, n_k, state.offsets[k])
                     r = state.xa - y
                     dist = r.norm()
                     if dist < S.support:
