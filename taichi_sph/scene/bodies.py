@@ -165,7 +165,7 @@ def wall_crossings(x: np.ndarray, kind: np.ndarray, cfg: Config) -> int:
 
 
 def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray,
-                     with_container: bool = False):
+                     with_container: bool = False) -> tuple[np.ndarray, ...]:
     """For each wall particle, the face of its wall body that it lies behind: unit normal n into the
     fluid and offset s, so that y . n - s is a point's signed distance to that face (rows of fluid
     particles are zero). wall_box: the inner face the particle is furthest outside of (a corner
@@ -174,7 +174,8 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray,
     A body only claims the particles of its own shape: an open-top box's shell ends at its top (a lid
     laid across it is not part of it: claiming the lid's particles gave them the box's side faces, see
     physics/walls.py), and no face is perpendicular to a periodic axis (a block that spans one has no
-    end there: particles wrapping through the seam met a phantom face)."""
+    end there: particles wrapping through the seam met a phantom face). `with_container`: also whether each
+    particle's body is a wall_box (a container, whose faces the shift may mirror the fluid in)."""
     dim = cfg.dim
     normal = np.zeros((len(x), dim))
     offset = np.zeros(len(x))
