@@ -65,3 +65,13 @@ def test_the_wall_particles_shift_a_sliding_row_onto_the_wall():
     assert np.ptp(normal) < 0.01 * np.abs(normal).max()
     aligned, _ = sliding_tank("particles", 0.0)
     assert np.abs(aligned[:, 1]).max() < 1e-3 * np.abs(normal).max()
+
+
+def test_the_mirror_without_wall_faces_is_a_config_error():
+    from taichi_sph.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="wall_clearance"):
+        config_from_dict({"name": "x", "dim": 2, "domain": {"lo": [0.0, 0.0], "hi": [1.0, 1.0]},
+                          "particles": {"dx": 0.1}, "fluid": {"reference_speed": 1.0},
+                          "bodies": [{"type": "fluid_block", "lo": [0.2, 0.2], "hi": [0.8, 0.8]}], "solver": "isph",
+                          "shifting": {"walls": "mirror"}, "isph": {"wall_clearance": None}})

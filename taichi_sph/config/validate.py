@@ -110,6 +110,11 @@ def validate(cfg: Config, source: str) -> None:
         raise ConfigError("the corrected symmetric pressure gradient is the adjoint of the corrected continuity divergence: it "
                           "needs `wcsph.density: continuity`, no tensile instability control and the symmetric surface "
                           "gradient", source=source, key="wcsph.pressure_gradient")
+    clearance = cfg.isph.wall_clearance if cfg.solver == "isph" else cfg.wcsph.wall_clearance
+    if cfg.shifting.walls == "mirror" and clearance is None:
+        raise ConfigError(f"the mirror reflects the fluid in the wall faces of the kinematic wall condition, which "
+                          f"`{cfg.solver}.wall_clearance: null` switches off: set a clearance (default 0.25) or "
+                          f"`shifting.walls: particles`", source=source, key="shifting.walls")
     if cfg.particles.neighbor_access == "cells" and cfg.solver != "wcsph":
         raise ConfigError("'cells' is for WCSPH only: ISPH assembles its pressure equation from the stored lists; "
                           "use 'lists'", source=source, key="particles.neighbor_access")
