@@ -8,7 +8,7 @@ import taichi as ti
 
 from taichi_sph.config.loader import bundled_configs_dir, config_from_dict, load_config
 from taichi_sph.linalg.ppe import BB, DIRICHLET, N_DIRICHLET, UNKNOWN
-from taichi_sph.physics.free_surface import projection_self_ratio
+from taichi_sph.physics.free_surface import projection_self_ratio, strained_surface_depth
 from taichi_sph.run.simulation import Simulation
 from taichi_sph.scene.bodies import build_particles
 from taichi_sph.scene.lattice import lattice_gradient_sum
@@ -399,6 +399,35 @@ def test_projection_self_ratio_of_a_half_plane_lattice(depth, low, high):
                 grad_w_moment += dx * dx * np.outer(grad_w, grad_w)
     ratio = _self_ratio(grad_c, moment, grad_w_moment, dx * dx)
     assert low < ratio < high
+
+
+@ti.kernel
+def _strained_depth(depth: float, grad_v: ti.types.matrix(2, 2, float), normal: ti.types.vector(2, float),
+                    dt: float) -> float:
+    return strained_surface_depth(depth, grad_v, normal, dt)
+
+
+@pytest.mark.parametrize("grad_v, rate", [
+    (((1.0, 0.0), (0.0, -1.0)), -1.0),  # stretched along the surface (x), squeezed across: the layer thins
+    (((-1.0, 0.0), (0.0, 1.0)), 1.0),   # squeezed along the surface: it thickens (under a wave's crest)
+    (((0.0, 0.0), (0.0, 1.0)), 0.0),    # normal motion alone (a surface particle's, which no PPE row holds)
+    (((0.0, 0.5), (0.5, 0.0)), 0.0),    # shear: no area change along the surface
+])
+def test_the_surface_layer_keeps_its_area(grad_v, rate):
+    """d' = d (1 - dt div_t v): a surface (normal +y) stretched along itself at rate 1/s for dt = 0.01 s thins the
+    layer above a particle by 1%; the normal strain rate, which incompressibility ties to it, is not used."""
+    depth = _strained_depth(0.01, np.array(grad_v), np.array([0.0, 1.0]), 0.01)
+    assert depth == pytest.approx(0.01 * (1.0 + 0.01 * rate), rel=1e-6)
+
+
+def test_strained_depth_is_an_isph_option():
+    cfg = load_config(bundled_configs_dir() / "standing_wave_2d.yaml", ["solver=isph"])
+    assert cfg.isph.surface_depth == "fixed"
+    strained = load_config(bundled_configs_dir() / "standing_wave_2d.yaml",
+                           ["solver=isph", "isph.surface_depth=strained"])
+    assert strained.isph.surface_depth == "strained"
+    with pytest.raises(Exception, match="surface_depth"):
+        load_config(bundled_configs_dir() / "standing_wave_2d.yaml", ["isph.surface_depth=deep"])
 
 
 @pytest.mark.parametrize("step_force, limit", [("total", "force"), ("explicit", "cfl")])

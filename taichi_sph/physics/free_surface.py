@@ -46,3 +46,19 @@ def projection_self_ratio(grad_c, moment, grad_w_moment, vol_a: float) -> float:
     """
     m_inv_t = moment.inverse().transpose()
     return grad_c.dot(m_inv_t @ grad_c) / ti.max(vol_a * (m_inv_t @ grad_w_moment).trace(), 1e-30)
+
+
+@ti.func
+def strained_surface_depth(depth: float, grad_v, normal, dt: float) -> float:
+    """The depth of a free-surface particle under the surface after a step dt of the velocity gradient grad_v
+    (grad_v[i, j] = d v_i / d x_j) at the particle, `normal` the unit outward normal:
+
+        d <- d (1 - dt div_t v),  div_t v = div v - n . grad v . n
+
+    The fluid layer between the particle and the surface keeps its area (volume in 3D), so it thickens where the
+    surface is compressed along itself (under a linear wave's crest by k eta / tanh(kH)). The tangential
+    divergence is used, not the normal strain n . grad v . n that incompressibility makes equal to it: a surface
+    particle has no PPE row, so its normal motion relative to the row below is not held, and a depth integrated
+    from it feeds the wave (docs/isph.md)."""
+    tangential_divergence = grad_v.trace() - normal.dot(grad_v @ normal)
+    return depth * (1.0 - dt * tangential_divergence)

@@ -52,7 +52,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
 
     name = "isph"
     # beta: set by prepare from the scene's initial state (find_confinement), as the kernels compiled with it
-    transient_state = ISPHDeviceLoop.transient_state + FreeSurfaceDetection.transient_state + ("beta",)
+    transient_state = ISPHDeviceLoop.transient_state + FreeSurfaceDetection.transient_state + ("beta", "strain_dt")
     wall_wall_pairs = False  # no ISPH term couples two wall particles
 
     def __init__(self, cfg: Config, arrays: ParticleArrays) -> None:
@@ -69,6 +69,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.one_sided = ic.one_sided_ratio is not None
         self.one_sided_ratio = ic.one_sided_ratio if self.one_sided else 0.0
         self.surface_depth = 0.5 * self.dx
+        self.strained_depth = ic.surface_depth == "strained"
         self.lattice_sum = lattice_kernel_sum(cfg, self.kernel.w_np)
         self.grad_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np)
         self.lap_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np, self.eta2)
@@ -85,6 +86,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.init_free_surface_detection()
         self.rho_summation = P.add_scalar()    # rho_a before any floor: the density-invariance source
         self.grad_p_estimate = P.add_vector()  # rho0 (g - a) of the last step: grad p near the surface
+        # isph.surface_depth strained: each surface particle's depth (0: not at the surface last step) and the
+        # step's dt it is strained over (set before the detection pass, host or device clock)
+        self.depth = P.add_scalar(persistent=True) if self.strained_depth else None
+        self.strain_dt = ti.field(float, shape=()) if self.strained_depth else None
         # isph.density: continuity: each particle's density, carried by the divergence of its motion and shift
         self.continuity = ic.density == "continuity"
         self.continuity_density = ContinuityDensity(self) if self.continuity else None
@@ -341,6 +346,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         dt = min(dt_free, self.dt_cap)
         if self.step_count > 0:
             self.rebuild_neighbors()
+            if self.strained_depth:
+                self.strain_dt[None] = dt
             self.detect_free_surface()
         if self.features.no_slip and (self.features.laminar_viscosity or self.features.artificial_viscosity):
             self.wall_pressure()  # ghost velocities for the viscous terms

@@ -7,8 +7,13 @@ pressure with. A mixin of ISPHSolver: its methods read the solver's fields and s
 import taichi as ti
 
 from taichi_sph.linalg.ppe import DIRICHLET, N_DIRICHLET, NOT_IN_PPE, UNKNOWN
-from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT
-from taichi_sph.physics.free_surface import SURFACE_CANDIDATE, in_surface_cone, projection_self_ratio
+from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradient_pair_terms
+from taichi_sph.physics.free_surface import (
+    SURFACE_CANDIDATE,
+    in_surface_cone,
+    projection_self_ratio,
+    strained_surface_depth,
+)
 from taichi_sph.physics.ppe_terms import free_surface_pressure
 from taichi_sph.scene.bodies import FLUID
 
@@ -56,7 +61,9 @@ class FreeSurfaceDetection:
                     sums = ti.Struct(rho=P.mass[a] * self.kernel.w0, grad_c=ti.Vector.zero(float, self.dim),
                                      moment=ti.Matrix.zero(float, self.dim, self.dim),
                                      grad_w_moment=ti.Matrix.zero(float, self.dim, self.dim),
-                                     acc_sum=P.mass[a] * self.kernel.w0 * P.acc[a], w_fluid=P.mass[a] * self.kernel.w0)
+                                     acc_sum=P.mass[a] * self.kernel.w0 * P.acc[a], w_fluid=P.mass[a] * self.kernel.w0,
+                                     sum_dv=ti.Matrix.zero(float, self.dim, self.dim),
+                                     m_fluid=ti.Matrix.zero(float, self.dim, self.dim), wall_in_reach=False)
                     self.nsearch.for_each_neighbor(a, P.x, self.free_surface_pair, sums)
                     rho, grad_c, moment, grad_w_moment = sums.rho, sums.grad_c, sums.moment, sums.grad_w_moment
                     acc_sum, w_fluid = sums.acc_sum, sums.w_fluid
@@ -82,9 +89,15 @@ class FreeSurfaceDetection:
                     role = UNKNOWN
                     if surface:
                         role = DIRICHLET
-                        P.p[a] = self.p_background + free_surface_pressure(self.rho0, self.surface_depth, grad_c,
+                        depth = self.surface_depth
+                        if ti.static(self.strained_depth):
+                            depth = self.surface_layer_depth(a, sums, grad_c)
+                        P.p[a] = self.p_background + free_surface_pressure(self.rho0, depth, grad_c,
                                                                            self.body_force(xa), acc)
                         ti.atomic_add(E.scalars[N_DIRICHLET], 1.0)
+                    if ti.static(self.strained_depth):
+                        if not surface:
+                            self.depth[a] = 0.0
                     if candidate:  # (physics/free_surface.py) below it: floored at rho0
                         rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
                     P.rho[a] = rho
@@ -106,6 +119,29 @@ class FreeSurfaceDetection:
         if P.kind[b] == FLUID:
             sums.acc_sum += P.mass[b] * w * P.acc[b]
             sums.w_fluid += P.mass[b] * w
+            if ti.static(self.strained_depth):
+                s_ab, m_ab = corrected_gradient_pair_terms(P.mass[b] / self.rho0, P.v[a] - P.v[b], r_ab, grad_w)
+                sums.sum_dv += s_ab
+                sums.m_fluid += m_ab
+        elif ti.static(self.strained_depth):
+            sums.wall_in_reach = True
+
+    @ti.func
+    def surface_layer_depth(self, a, sums: ti.template(), grad_c) -> float:
+        """(isph.surface_depth: strained) a's depth under the surface, kept in `depth`: dx/2 where a joins the surface
+        or has a wall in reach (a contact line's one-sided support: there the strained depth gained energy),
+        else last step's, strained by the step's tangential divergence (physics/free_surface.py
+        strained_surface_depth; the corrected velocity gradient over the fluid neighbours), within [dx/4, dx]."""
+        depth = self.depth[a]
+        m = sums.m_fluid
+        if depth <= 0.0 or sums.wall_in_reach or ti.abs(m.determinant()) <= MIN_MOMENT_DETERMINANT:
+            depth = self.surface_depth
+        else:
+            depth = strained_surface_depth(depth, sums.sum_dv @ m.inverse(), -grad_c.normalized(1e-12),
+                                           self.strain_dt[None])
+            depth = ti.min(ti.max(depth, 0.5 * self.surface_depth), 2.0 * self.surface_depth)
+        self.depth[a] = depth
+        return depth
 
     @ti.func
     def surface_cone_pair(self, a, b, r_ab, cone: ti.template()):

@@ -148,6 +148,8 @@ class ISPHDeviceLoop:
         dt_free = self.free_surface_dt_rule()
         self.dt_free_field[None] = dt_free
         self.clock.set_dt(dt_free)
+        if ti.static(self.strained_depth):
+            self.strain_dt[None] = ti.cast(self.clock.dt[None], float)
         self.gravity_at_clock_time()
 
     @ti.func
