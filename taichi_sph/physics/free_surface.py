@@ -62,3 +62,24 @@ def strained_surface_depth(depth: float, grad_v, normal, dt: float) -> float:
     from it feeds the wave (docs/isph.md)."""
     tangential_divergence = grad_v.trace() - normal.dot(grad_v @ normal)
     return depth * (1.0 - dt * tangential_divergence)
+
+
+@ti.func
+def linear_fit_at_particle(weight_sum: float, sum_f, sum_r, sum_rr, sum_fr):
+    """f(0) of the weighted least-squares fit f(r) = f0 + G r to neighbour values f_b at offsets r_b = x_b - x_a
+    (weights w_b; the particle itself at r = 0 included), from the sums of w, w f, w r, w r r^T and w f r^T:
+
+        f0 = <f> - C_fr C_rr^-1 <r>,  C_rr = <r r^T> - <r><r>^T,  C_fr = <f r^T> - <f><r>^T
+
+    (<.> the w-weighted means). Exact for a linear f. The Shepard mean <f> alone is f at the neighbours' centroid
+    <r>, ~1 dx inside a free-surface particle. Where C_rr is near singular (a few neighbours in a line) the mean."""
+    mean_f = sum_f / weight_sum
+    mean_r = sum_r / weight_sum
+    c_rr = sum_rr / weight_sum - mean_r.outer_product(mean_r)
+    c_fr = sum_fr / weight_sum - mean_f.outer_product(mean_r)
+    scale = c_rr.trace() / c_rr.n
+    f0 = mean_f
+    if scale > 0.0:
+        if ti.abs(c_rr.determinant()) > 1e-3 * scale ** c_rr.n:
+            f0 = mean_f - c_fr @ (c_rr.inverse() @ mean_r)
+    return f0
