@@ -151,9 +151,11 @@ class Shifting:
                                   "(experimental), the images of the fluid in the faces the support meets: a free-slip "
                                   "wall is the fluid's mirror, and the images slide with the fluid. On the standing wave "
                                   "the wall particles' part (it depends on how a sliding fluid row sits against the wall "
-                                  "rows) is ISPH's whole energy gain, +1.6% a period, mirror +0.2%; but with the mirror "
-                                  "ISPH's dam_break_buchner_2d ends 'unstable' at the wall impact (docs/isph.md). Other "
-                                  "walls (wall_block) always use their particles", choices=("particles", "mirror"))
+                                  "rows) is ISPH's whole energy gain, +1.6% a period, mirror +0.2%. Not yet the default: "
+                                  "before session 21's acceleration fit ISPH's dam_break_buchner_2d ended 'unstable' "
+                                  "with it at the wall impact; with the fit it ends ok in 3 of 4 perturbed runs, as "
+                                  "with the wall particles (docs/isph.md). Other walls (wall_block) always use their "
+                                  "particles", choices=("particles", "mirror"))
     velocity_correction: bool = opt(False, "Taylor correction after the shift: v_a += (grad v)_a . dr_a (and, with WCSPH's "
                                            "continuity density, rho_a += (grad rho)_a . dr_a), with the renormalised gradient "
                                            "(physics/shifting.py taylor_correction; Xu, Stansby & Laurence 2009, Lind et "
