@@ -332,7 +332,7 @@ def test_wall_face_planes_of_a_box_and_a_block():
                    {"type": "wall_block", "lo": [0.6, 0.0], "hi": [0.8, 0.4]},
                    {"type": "wall_box", "lo": [0.0, 0.0], "hi": [1.0, 1.0], "layers": 2}]})
     arrays = build_particles(cfg)
-    normal, offset = wall_face_planes(cfg, arrays.x, arrays.kind)
+    normal, offset, _ = wall_face_planes(cfg, arrays.x, arrays.kind)
     walls = arrays.kind == 1
     assert np.allclose(np.linalg.norm(normal[walls], axis=1), 1.0)
     assert np.all(normal[~walls] == 0.0)

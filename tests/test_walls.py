@@ -55,7 +55,7 @@ def test_wall_faces_of_the_lid_driven_cavity():
     particle in reach of the fluid; the box's shell used to claim them and give them its side faces."""
     cfg = load_config(bundled_configs_dir() / "cavity_2d.yaml", [])
     arrays = build_particles(cfg)
-    normal, offset = wall_face_planes(cfg, arrays.x, arrays.kind)
+    normal, offset, _ = wall_face_planes(cfg, arrays.x, arrays.kind)
     x = arrays.x
     lid = (arrays.kind == WALL) & (x[:, 1] > 1.0) & (x[:, 0] > -0.07) & (x[:, 0] < 1.07) & (x[:, 1] < 1.07)
     assert lid.sum() > 0
@@ -71,7 +71,7 @@ def test_no_wall_face_across_a_periodic_axis():
         "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [H, H]},
                    {"type": "wall_block", "lo": [0.0, -0.15], "hi": [H, 0.0]}]})
     arrays = build_particles(cfg)
-    normal, _ = wall_face_planes(cfg, arrays.x, arrays.kind)
+    normal, _, _ = wall_face_planes(cfg, arrays.x, arrays.kind)
     walls = arrays.kind == WALL
     assert np.all(normal[walls, 0] == 0.0)
     assert np.allclose(normal[walls & (arrays.x[:, 1] > -0.05)], [0.0, 1.0])

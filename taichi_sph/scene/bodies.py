@@ -164,8 +164,7 @@ def wall_crossings(x: np.ndarray, kind: np.ndarray, cfg: Config) -> int:
     return count
 
 
-def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray,
-                     with_container: bool = False) -> tuple[np.ndarray, ...]:
+def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """For each wall particle, the face of its wall body that it lies behind: unit normal n into the
     fluid and offset s, so that y . n - s is a point's signed distance to that face (rows of fluid
     particles are zero). wall_box: the inner face the particle is furthest outside of (a corner
@@ -174,8 +173,8 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray,
     A body only claims the particles of its own shape: an open-top box's shell ends at its top (a lid
     laid across it is not part of it: claiming the lid's particles gave them the box's side faces, see
     physics/walls.py), and no face is perpendicular to a periodic axis (a block that spans one has no
-    end there: particles wrapping through the seam met a phantom face). `with_container`: also whether each
-    particle's body is a wall_box (a container, whose faces the shift may mirror the fluid in)."""
+    end there: particles wrapping through the seam met a phantom face). Returns (normal, offset, container):
+    container says whether the particle's body is a wall_box (whose faces the shift may mirror the fluid in)."""
     dim = cfg.dim
     normal = np.zeros((len(x), dim))
     offset = np.zeros(len(x))
@@ -213,8 +212,6 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray,
         offset[idx] = s[inside_shell]
         container[idx] = body.type == "wall_box"
         unassigned[idx] = False
-    if with_container:
-        return normal, offset, container
-    return normal, offset
+    return normal, offset, container
 
 

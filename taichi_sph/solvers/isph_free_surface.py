@@ -15,6 +15,7 @@ from taichi_sph.physics.free_surface import (
     projection_self_ratio,
     strained_surface_depth,
 )
+from taichi_sph.physics.momentum import renormalised_velocity_gradient
 from taichi_sph.physics.ppe_terms import free_surface_pressure
 from taichi_sph.scene.bodies import FLUID
 
@@ -142,14 +143,14 @@ class FreeSurfaceDetection:
         """(isph.surface_depth: strained) a's depth under the surface, kept in `depth`: dx/2 where a joins the surface
         or has a wall in reach (a contact line's one-sided support: there the strained depth gained energy),
         else last step's, strained by the step's tangential divergence (physics/free_surface.py
-        strained_surface_depth; the corrected velocity gradient over the fluid neighbours), within [dx/4, dx]."""
+        strained_surface_depth; the renormalised velocity gradient over the fluid neighbours, physics/momentum.py),
+        within [dx/4, dx]."""
         depth = self.depth[a]
-        m = sums.m_fluid
-        if depth <= 0.0 or sums.wall_in_reach or ti.abs(m.determinant()) <= MIN_MOMENT_DETERMINANT:
+        if depth <= 0.0 or sums.wall_in_reach:
             depth = self.surface_depth
         else:
-            depth = strained_surface_depth(depth, sums.sum_dv @ m.inverse(), -grad_c.normalized(1e-12),
-                                           self.strain_dt[None])
+            grad_v = renormalised_velocity_gradient(sums.sum_dv, sums.m_fluid)
+            depth = strained_surface_depth(depth, grad_v, -grad_c.normalized(1e-12), self.strain_dt[None])
             depth = ti.min(ti.max(depth, 0.5 * self.surface_depth), 2.0 * self.surface_depth)
         self.depth[a] = depth
         return depth

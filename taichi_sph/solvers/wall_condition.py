@@ -19,7 +19,7 @@ class KinematicWalls:
         if self.kinematic_walls:
             P = self.particles
             self.wall_clearance = clearance_dx * self.dx
-            normal, offset, container = wall_face_planes(self.cfg, arrays.x, arrays.kind, with_container=True)
+            normal, offset, container = wall_face_planes(self.cfg, arrays.x, arrays.kind)
             if self.cfg.shifting.walls == "mirror" and container.any():  # faces the shift's grad C reflects in
                 self.wall_container = P.add_scalar(persistent=True, dtype=ti.i32)
                 self.wall_container.from_numpy(container.astype(np.int32))
