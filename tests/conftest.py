@@ -53,7 +53,7 @@ SLOW = {
     # the wave with ISPH's defaults over 3 periods (the two short unstable set-ups stay default)
     "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods": "~35 s quiet, 70 s loaded: to t = 5",
     "test_standing_wave.py::test_wcsph_defaults_keep_the_wave_for_three_periods": "~70 s quiet, 134 s loaded: to t = 5",
-    "test_standing_wave.py::test_isph_with_mirrored_walls_in_the_shift_keeps_the_waves_energy": "~40 s: to t = 5",
+    "test_standing_wave.py::test_the_wall_particles_in_the_shift_feed_the_wave": "~40 s: to t = 5",
     "test_standing_wave.py::test_isph_with_the_strained_surface_depth_keeps_the_waves_period": "~15-40 s: to t = 5",
     # the three kill moments: each is a dam-break child process killed, then resumed in-process, ~23 s; the
     # first one in the module also runs the uninterrupted reference (83 s)
@@ -142,7 +142,7 @@ SLOW = {
     "test_wcsph.py::test_loop_schedule_gives_identical_results": "23 s",
     "test_validate.py::test_quick_run_of_a_tiny_scene_writes_the_table_with_numbers": "23 s",
     "test_validate.py::test_a_quick_convergence_study_adds_its_runs_and_section": "17 s: three tank runs",
-    "test_standing_wave.py::test_a_wave_that_gains_energy_ends_unstable[overrides0-1.0]": "23 s (the other two stay)",
+    "test_standing_wave.py::test_a_wave_that_gains_energy_ends_unstable[overrides0-1.5]": "30 s (the other two stay)",
     "test_run_safety.py::test_disk_full_in_the_timeseries_or_the_summary[timeseries]": "22 s (the summary case stays)",
     "test_executor.py::test_a_failed_case_does_not_stop_the_others_and_is_in_the_report": "22 s",
     "test_device_loop.py::test_batches_equal_single_steps_bit_for_bit[False]": "21 s",

@@ -75,3 +75,18 @@ def test_the_mirror_without_wall_faces_is_a_config_error():
                           "particles": {"dx": 0.1}, "fluid": {"reference_speed": 1.0},
                           "bodies": [{"type": "fluid_block", "lo": [0.2, 0.2], "hi": [0.8, 0.8]}], "solver": "isph",
                           "shifting": {"walls": "mirror"}, "isph": {"wall_clearance": None}})
+
+
+@pytest.mark.parametrize("solver, extra, resolved", [
+    ("isph", {}, "mirror"),
+    ("wcsph", {}, "particles"),
+    ("isph", {"isph": {"wall_clearance": None}}, "particles"),  # no wall faces to reflect in: auto falls back
+    ("wcsph", {"shifting": {"walls": "mirror"}}, "mirror"),
+])
+def test_auto_walls_are_the_mirror_for_isph_with_wall_faces(solver, extra, resolved):
+    cfg = config_from_dict({"name": "x", "dim": 2, "domain": {"lo": [0.0, 0.0], "hi": [1.0, 1.0]},
+                            "particles": {"dx": 0.1}, "fluid": {"reference_speed": 1.0},
+                            "bodies": [{"type": "fluid_block", "lo": [0.2, 0.2], "hi": [0.8, 0.8]}],
+                            "solver": solver, **extra})
+    assert cfg.shifting.walls == ("auto" if "shifting" not in extra else "mirror")
+    assert cfg.shifting_walls == resolved

@@ -111,7 +111,7 @@ def validate(cfg: Config, source: str) -> None:
                           "needs `wcsph.density: continuity`, no tensile instability control and the symmetric surface "
                           "gradient", source=source, key="wcsph.pressure_gradient")
     clearance = cfg.isph.wall_clearance if cfg.solver == "isph" else cfg.wcsph.wall_clearance
-    if cfg.shifting.walls == "mirror" and clearance is None:
+    if cfg.shifting.walls == "mirror" and clearance is None:  # explicit only: auto falls back
         raise ConfigError(f"the mirror reflects the fluid in the wall faces of the kinematic wall condition, which "
                           f"`{cfg.solver}.wall_clearance: null` switches off: set a clearance (default 0.25) or "
                           f"`shifting.walls: particles`", source=source, key="shifting.walls")

@@ -155,6 +155,7 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
     else:
         kinematic = f.walls and cfg.isph.wall_clearance is not None
         floats += 2 * ((d + 1) if kinematic else 0) + d     # wall planes (+ scratch), acc scratch
+        ints += 2 * (kinematic and cfg.shifting_walls == "mirror")  # container-face flag (+ scratch)
         floats += 1 + d                                     # rho_summation, grad_p_estimate
         floats += 4 + nb + {"cg": 3, "mgcg": 4 + 3 ** d - 1}.get(cfg.isph.ppe.solver_for(n_fluid), 0)
         ints += 2 + nb                                      # role, row start, a column index per pair

@@ -9,7 +9,7 @@ tangent to the surface, a particle with a surface particle within its support lo
 skillen with the outer-layer projection only: the second row up 3.9e-3 dx a step, the wave's energy +72% in
 0.3 s; docs/isph.md).
 
-With `shifting.walls: mirror` (an option) a container wall (wall_box) enters the kernel sum, its gradient and grad C as
+With `shifting.walls: mirror` (ISPH's default, `auto`) a container wall (wall_box) enters the kernel sum, its gradient and grad C as
 the images of the fluid in its faces rather than as its wall particles, whose part depends on how a fluid row sliding
 along the wall sits against the wall rows (`mirror_images`; docs/isph.md: on the standing wave that near-wall shift
 was ISPH's whole energy gain).
@@ -69,7 +69,7 @@ class ParticleShifting:
         self.threshold = cfg.isph.free_surface_threshold
         self.w_dx = float(solver.kernel.w_np(np.array([cfg.particles.dx]))[0])
         self.shift = solver.particles.add_vector()
-        self.mirror = cfg.shifting.walls == "mirror"
+        self.mirror = cfg.shifting_walls == "mirror"
         # shifting.velocity_correction: the Taylor update of v (and of WCSPH's continuity density) for the shift
         self.correct = solver.features.shifting_correction
         self.correct_rho = self.correct and solver.name == "wcsph" and solver.features.density == "continuity"

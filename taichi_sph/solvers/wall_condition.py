@@ -20,7 +20,7 @@ class KinematicWalls:
             P = self.particles
             self.wall_clearance = clearance_dx * self.dx
             normal, offset, container = wall_face_planes(self.cfg, arrays.x, arrays.kind)
-            if self.cfg.shifting.walls == "mirror" and container.any():  # faces the shift's grad C reflects in
+            if self.cfg.shifting_walls == "mirror" and container.any():  # faces the shift's grad C reflects in
                 self.wall_container = P.add_scalar(persistent=True, dtype=ti.i32)
                 self.wall_container.from_numpy(container.astype(np.int32))
             self.wall_normal = P.add_vector(persistent=True)
