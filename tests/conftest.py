@@ -116,7 +116,7 @@ SLOW = {
     "test_multigrid.py::test_preconditioner_symmetric_and_positive_on_random_vectors_of_a_larger_tank": "54 s",
     "test_run_safety.py::test_a_real_full_filesystem": "53 s",
     "test_wcsph.py::test_momentum_conserved_periodic_random_velocities": "53 s",
-    "test_rotating_square.py::test_rotating_square_short[wcsph-overrides0-0.03]": "52 s",
+    "test_rotating_square.py::test_rotating_square_short[wcsph]": "52 s",
     "test_ppe_loop.py::test_fused_iteration_equals_the_split_one[True]": "52 s",
     "test_multigrid.py::test_preconditioner_is_symmetric_positive_definite[neumann_pinned]": "52 s",
     "test_particle_order.py::test_interior_density_error_leaves_out_the_surface_band[wcsph]": "51 s",

@@ -39,18 +39,20 @@ def corrected_velocity_divergence(sum_dv, moment) -> float:
 
 
 @ti.func
-def ppe_source(div_v_star: float, rho: float, rho0: float, dt: float, dt_relax: float, beta: float) -> float:
+def ppe_source(div_v_star: float, rho: float, rho0: float, dt: float, beta: float) -> float:
     """Right side s_a of div(grad p / rho) = s_a [1/s^2]:
 
         divergence (Cummins & Rudman 1999):      s = div(v*) / dt
-        density invariance (Shao & Lo 2003):     s = (rho0 - rho*) / (rho0 dt dt_relax),  rho* = rho - dt rho div(v*)
+        density invariance (Shao & Lo 2003):     s = (rho0 - rho*) / (rho0 dt^2),  rho* = rho - dt rho div(v*)
         blend:                                   s = (1 - beta) s_div + beta s_density
-    beta = 0 is the first, beta = 1 the second. dt_relax is dt (Shao & Lo) except in a step shortened
-    to land on an output or end time: there the unshortened dt keeps the density correction's velocity
-    kick, ~ (rho0 - rho) / rho0 h / dt_relax, what it is in every other step.
+    beta = 0 is the first, beta = 1 the second. dt is the step's dt from its rules, also in a step shortened
+    to land on the end time: that step's pressure is then what it is in every other step, and its correction
+    dt_short grad p / rho removes dt_short / dt of the divergence (and (dt_short / dt)^2 of the density error).
+    With the shortened dt here a last step of 1e-3 dt multiplied the end state's pressure ~1000-fold (the
+    rotating square's centre: -5.97 rho0 omega^2 L^2 against -0.13).
     """
     s_div = div_v_star / dt
-    s_density = (rho0 - rho) / (rho0 * dt * dt_relax) + rho / rho0 * s_div
+    s_density = (rho0 - rho) / (rho0 * dt * dt) + rho / rho0 * s_div
     return (1.0 - beta) * s_div + beta * s_density
 
 
@@ -64,17 +66,19 @@ def neumann_wall_pressure_difference(rho: float, body_acc, r_aw) -> float:
 
 
 @ti.func
-def free_surface_pressure(rho0: float, depth: float, grad_c, body_acc, acc) -> float:
+def free_surface_pressure(rho0: float, depth: float, grad_c, body_acc, acc, tension: ti.template()) -> float:
     """Dirichlet value at a free-surface particle `depth` below the surface (dx/2 on a lattice).
 
     The surface is an isobar, so grad p = rho0 (g - a) (Euler) is normal to it and p = depth |grad p|.
     The kernel normal n = -grad C / |grad C| (grad C = sum_b V_b grad_a W_ab points into the fluid) only
-    decides the sign: zero where grad p points out of the fluid (no tension at a free surface). This is
-    rho0 |g| dx/2 on a surface at rest, also at a contact line where n leans off the vertical, and 0 in
-    free fall (a = g).
+    decides the sign. Where grad p points out of the fluid the pressure under the surface is a tension:
+    p = -depth |grad p| with `tension` (`isph.surface_pressure: signed`), else 0. This is rho0 |g| dx/2 on a
+    surface at rest, also at a contact line where n leans off the vertical, and 0 in free fall (a = g).
     """
     grad_p = rho0 * (body_acc - acc)
     p = 0.0
     if grad_c.dot(grad_p) > 0.0:
         p = depth * grad_p.norm()
+    elif ti.static(tension):
+        p = -depth * grad_p.norm()
     return p

@@ -70,6 +70,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.one_sided_ratio = ic.one_sided_ratio if self.one_sided else 0.0
         self.surface_depth = 0.5 * self.dx
         self.strained_depth = ic.surface_depth == "strained"
+        self.surface_tension = ic.surface_pressure == "signed"
         self.lattice_sum = lattice_kernel_sum(cfg, self.kernel.w_np)
         self.grad_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np)
         self.lap_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np, self.eta2)
@@ -158,11 +159,11 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
 
     # -- 3. the linear system -----------------------------------------------------------------
     @ti.kernel
-    def assemble_ppe(self, dt: float, dt_relax: float):
-        self.assemble_ppe_pass(dt, dt_relax)
+    def assemble_ppe(self, dt: float, dt_rule: float):
+        self.assemble_ppe_pass(dt, dt_rule)
 
     @ti.func
-    def assemble_ppe_pass(self, dt, dt_relax):
+    def assemble_ppe_pass(self, dt, dt_rule):
         """Coefficients, diagonal and right side of the unknown particles' rows (see the module doc)."""
         P = self.particles
         E = self.ppe
@@ -197,7 +198,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                         rho = ti.max(rho, self.rho0)
                 if ti.static(self.compression_only):
                     rho = ti.max(rho, self.rho0)
-                rhs -= vol_a * ppe_source(div_v, rho, self.rho0, dt, dt_relax, self.beta)
+                rhs -= vol_a * ppe_source(div_v, rho, self.rho0, dt_rule, self.beta)
                 if diag > 0.0:
                     E.diag[a] = diag
                     E.diag_dirichlet[a] = diag_dirichlet

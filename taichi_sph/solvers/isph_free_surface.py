@@ -100,7 +100,8 @@ class FreeSurfaceDetection:
                         if ti.static(self.strained_depth):
                             depth = self.surface_layer_depth(a, sums, grad_c)
                         P.p[a] = self.p_background + free_surface_pressure(self.rho0, depth, grad_c,
-                                                                           self.body_force(xa), acc)
+                                                                           self.body_force(xa), acc,
+                                                                           ti.static(self.surface_tension))
                         ti.atomic_add(E.scalars[N_DIRICHLET], 1.0)
                     if ti.static(self.strained_depth):
                         if not surface:
