@@ -5,7 +5,8 @@ surface eta(x, t) = a cos(k (x - x0)) sin(omega t) exp(-2 nu k^2 t) (viscous dec
 Lamb 1932 s. 348). The run starts at the phase eta = 0 with the potential-flow velocity of that phase
 (configs/standing_wave_2d.yaml). Elevations are read next to both walls (validation/elevation.py), relative to their
 reading at the start (where theory gives eta = 0), above the tank's floor (a floor read from the lowest particles moves with the wave:
-+1% of amplitude).
++1% of amplitude). In 3D (vertical z) the wave runs along x and is uniform across the tank: the elevation is read
+at the tank's middle in y (the mean y of the fluid at the start; configs/standing_wave_3d.yaml).
 """
 
 from __future__ import annotations
@@ -58,6 +59,11 @@ class StandingWaveMetric(MetricObserver):
         self.rows: list[tuple[float, float, float, float]] = []
         self.rest = None
         self.offset: tuple[float, float] | None = None
+        self.across: tuple[float, ...] = ()  # 3D: the y the elevations are read at
+
+    def probe_point(self, x: float) -> tuple[float, ...]:
+        """Where eta is read: x along the wave (and, in 3D, the tank's middle across it)."""
+        return (x, *self.across)
 
     def columns(self) -> list[str]:
         return ["eta_left", "eta_right", "eta_theory_left"]
@@ -70,8 +76,9 @@ class StandingWaveMetric(MetricObserver):
         x, v, m, rho = state["x"][f], state["v"][f], state["mass"][f], state["rho"][f]
         if self.rest is None:
             self.rest = rest_state(self.cfg, m)
-        left = surface_elevation(x, m / rho, self.x_left, self.margin, floor=self.spec.floor)
-        right = surface_elevation(x, m / rho, self.x_right, self.margin, floor=self.spec.floor)
+            self.across = tuple(float(c) for c in x[:, 1:-1].mean(axis=0))
+        left = surface_elevation(x, m / rho, self.probe_point(self.x_left), self.margin, floor=self.spec.floor)
+        right = surface_elevation(x, m / rho, self.probe_point(self.x_right), self.margin, floor=self.spec.floor)
         if self.offset is None:  # the rest level (the surface row's volumes against dx^dim):
             self.offset = (left - self.theory(self.x_left, t), right - self.theory(self.x_right, t))
         left, right = left - self.offset[0], right - self.offset[1]
