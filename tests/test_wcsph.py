@@ -174,6 +174,21 @@ def test_reflecting_floor_keeps_particles_in_the_domain():
     assert "reflecting_faces" in res.summary["features"]
 
 
+def test_fluid_leaving_the_domain_is_reported_with_the_face_and_the_way_out():
+    """The same falling column without the reflecting face: it leaves through domain.lo[0]; the message says which
+    particle, which face, how fast, and what to change."""
+    cfg = load_config(CONFIGS / "column_1d.yaml", [
+        "bodies=[{type: fluid_block, lo: [0.5], hi: [1.0]}]", "domain.lo=[0.0]", "time.t_end=0.5"])
+    res = run(cfg)
+    assert res.summary["status"] == "unstable"
+    inst = res.summary["instability"]
+    assert inst["criterion"] == "left_domain" and 0.3 < inst["t"] < 0.5
+    detail = inst["detail"]
+    assert "crossed domain.lo[0] = 0 m" in detail and "reflecting.enabled: true" in detail
+    speed = float(detail.split("moving at ")[1].split(" m/s")[0])
+    assert speed == pytest.approx(9.81 * inst["t"], rel=0.1)  # free fall
+
+
 @pytest.mark.parametrize("diffusion", ["none", "molteni"])
 def test_continuity_rate_matches_divergence(diffusion):
     """v = -0.1 (x - c): div v = -0.2 (2D), so d rho / dt = 0.2 rho inside the block (delta-SPH adds

@@ -43,3 +43,25 @@ def culprit(cfg: Config, state: dict, criterion: str) -> int:
     else:
         idx = int(np.nanargmax(np.linalg.norm(np.nan_to_num(v), axis=1)))
     return int(state["id"][f][idx])
+
+
+def left_domain_detail(cfg: Config, state: dict, count: int) -> str:
+    """What a user reads when fluid leaves the domain: how many, where the first one crossed which face and how
+    fast, and the two ways out (room for spray, or reflecting faces) beside the third (a blow-up)."""
+    f = np.where(state["kind"] == FLUID)[0]
+    x, v = state["x"][f], state["v"][f]
+    lo, hi = np.asarray(cfg.domain.lo, dtype=float), np.asarray(cfg.domain.hi, dtype=float)
+    out = np.where(((x < lo) | (x > hi)).any(axis=1))[0]
+    plural = "particle" if count == 1 else "particles"
+    if len(out) == 0:
+        return f"{count} {plural} outside the domain"
+    i = int(out[0])
+    axis = int(np.argmax(np.maximum(lo - x[i], x[i] - hi)))
+    side, bound = ("lo", lo[axis]) if x[i, axis] < lo[axis] else ("hi", hi[axis])
+    at = ", ".join(f"{c:.4g}" for c in x[i])
+    return (f"{count} fluid {plural} outside the domain: particle {int(state['id'][f][i])} at ({at}) m crossed "
+            f"domain.{side}[{axis}] = {bound:.4g} m moving at {float(np.linalg.norm(v[i])):.3g} m/s. Spray from a "
+            f"splash needs room: move domain.{side}[{axis}] out, or set `reflecting.enabled: true` to bounce "
+            "particles off the domain faces; fluid leaving fast from inside the body is a blow-up (a smaller "
+            "time.cfl, or the solver's stabilisers)")
+

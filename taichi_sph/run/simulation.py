@@ -23,7 +23,7 @@ from taichi_sph.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, RenderUn
 from taichi_sph.run.checks import a_priori_checks
 from taichi_sph.run.disk import is_no_space, no_space_failure
 from taichi_sph.run.energy_watch import ENERGY_COLUMNS, EnergyWatch
-from taichi_sph.run.guards import culprit, guard_violation
+from taichi_sph.run.guards import culprit, guard_violation, left_domain_detail
 from taichi_sph.run.interrupt import sigint_calls
 from taichi_sph.run.lock import held
 from taichi_sph.run.loop_state import LoopState, RunResult
@@ -312,6 +312,8 @@ class Simulation:
         """The guard's finding with the step, time and culprit particle, logged."""
         solver = self.solver
         state = solver.host_state()
+        if bad["criterion"] == "left_domain":
+            bad = {**bad, "detail": left_domain_detail(self.cfg, state, solver.nsearch.escaped())}
         instability = {**bad, "step": solver.step_count, "t": solver.t,
                        "particle": culprit(self.cfg, state, bad["criterion"])}
         self.log(f"unstable at step {solver.step_count}, t = {solver.t:.4g} s: {bad['detail']}")
