@@ -327,6 +327,11 @@ class Guards:
                                            "WCSPH's elastic), as a fraction of its start, beyond which a run with no "
                                            "energy input (no moving walls, gravity ramp or periodic body force) is "
                                            "declared unstable; checked at output rows; null = off", minimum=0.0)
+    particles_outside: float = opt(0.001, "fraction of the fluid particles that may be outside the domain at once before "
+                                          "the run is declared unstable (spray over an open tank: such a particle flies "
+                                          "on under its body force, with no neighbour, and may fall back in; the run "
+                                          "warns with where the first one left); 0 = the first one ends the run",
+                                   minimum=0.0)
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ def guard_violation(cfg: Config, solver, stats: dict) -> dict | None:
     g = cfg.guards
     if stats["non_finite"] > 0:
         return {"criterion": "non_finite", "detail": f"{stats['non_finite']} particles with NaN/inf state"}
-    if solver.nsearch.escaped() > 0:
+    if solver.nsearch.escaped() > allowed_outside(cfg, solver):
         return {"criterion": "left_domain", "detail": f"{solver.nsearch.escaped()} particles outside the domain"}
     if solver.nsearch.overflowed():
         return {"criterion": "neighbour_overflow",
@@ -25,6 +25,11 @@ def guard_violation(cfg: Config, solver, stats: dict) -> dict | None:
         return {"criterion": "density_error",
                 "detail": f"|rho - rho0|/rho0 = {stats['max_density_error']:.3g} > {g.max_density_error}"}
     return None
+
+
+def allowed_outside(cfg: Config, solver) -> int:
+    """Fluid particles that may be outside the domain at once (`guards.particles_outside` of the fluid)."""
+    return int(cfg.guards.particles_outside * solver.particles.n_fluid)
 
 
 def culprit(cfg: Config, state: dict, criterion: str) -> int:

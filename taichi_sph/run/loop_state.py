@@ -20,6 +20,8 @@ class LoopState:
     step_times: list = field(default_factory=list)
     max_rho_err: float = 0.0
     max_wall_crossings: int = 0           # fluid particles outside their wall box, most at one output time
+    max_outside: int = 0                  # fluid particles outside the domain, most at one guard check
+    outside_note: str = ""                # where the first one left (guards.left_domain_detail)
     frames: int = 0                       # frames written
     render_s: float = 0.0
     wall_s: float = 0.0                   # stepping wall time of the segments before a resume

@@ -306,7 +306,20 @@ class Simulation:
         solver = self.solver
         self.stats = solver.read_stats()
         bad = guard_violation(self.cfg, solver, self.stats)
+        if bad is None:
+            self._note_particles_outside()
         return None if bad is None else self._instability(bad)
+
+    def _note_particles_outside(self) -> None:
+        """Fluid particles outside the domain within `guards.particles_outside`: the most at once, and where the
+        first one left (for the run's warning)."""
+        outside = self.solver.nsearch.escaped()
+        if outside > 0:
+            loop = self.loop
+            if not loop.outside_note:
+                detail = left_domain_detail(self.cfg, self.solver.host_state(), outside)
+                loop.outside_note = f"t = {self.solver.t:.4g} s: {detail.split(': ', 1)[-1].split('. ')[0]}"
+            loop.max_outside = max(loop.max_outside, outside)
 
     def _instability(self, bad: dict) -> dict:
         """The guard's finding with the step, time and culprit particle, logged."""
@@ -377,6 +390,7 @@ class Simulation:
             "particle_steps_per_s": solver.n * nsteps / stepping_s,
             "fluid_particle_steps_per_s": solver.particles.n_fluid * nsteps / stepping_s,
             "max_density_error": loop.max_rho_err,
+            "particles_outside_max": loop.max_outside,
             # the same over full-support particles (no free-surface particle within reach; particle_order.py)
             "max_density_error_interior": self.order_log.interior_density_error,
             "errors": errors,
@@ -403,6 +417,9 @@ class Simulation:
         elif status == "ok" and self.loop.max_wall_crossings:
             self.warnings.append(f"up to {self.loop.max_wall_crossings} fluid particles were outside their wall box at "
                                  f"output times (none at the end)")
+        if self.loop.max_outside:
+            self.warnings.append(f"up to {self.loop.max_outside} fluid particles were outside the domain (within "
+                                 f"guards.particles_outside); the first at {self.loop.outside_note}")
         self.warnings.extend(w for w in self.order_log.warnings() if w not in self.warnings)
 
     def _write_final(self, summary: dict, final: dict) -> None:
