@@ -57,6 +57,25 @@ def test_the_standing_wave_starts_with_linear_theory_s_energy():
     assert standing_wave_omega(2.0, 1.0, 9.81) == pytest.approx(3.7593, rel=1e-4)
 
 
+@pytest.mark.parametrize("lean", [0.00103, 1.0])
+def test_a_tilted_gravity_has_a_rest_state_that_is_a_lower_bound(lean):
+    """Gravity leant along x (dam_break_2d, whose column rests against the left wall): the rest state is the
+    layers under the vertical component plus all the mass at the downhill wall along x (validation/energy.py
+    tilted_rest_bound), below the potential of any arrangement in the tank, and the guard is on. For a tiny lean it
+    is the upright rest state to M |g_x| L; the column, leant toward the far wall, then holds that much more."""
+    from taichi_sph.validation.energy import energy_input
+    upright = load_config(CONFIGS / "dam_break_2d.yaml", ["solver=isph"])
+    cfg = load_config(CONFIGS / "dam_break_2d.yaml", ["solver=isph", f"gravity=[{lean}, -9.81]"])
+    x, v, rho, m = fluid(cfg)
+    rest, rest_upright = rest_state(cfg, m), rest_state(upright, m)
+    assert rest.known and energy_input(cfg) is None
+    assert rest.potential < potential_energy(cfg, x, m)
+    # the settled upright layer, slid against the downhill wall: an arrangement, so its potential is above the bound
+    settled_x = -lean * m.sum() * (5.366 / 2.0)  # the layer's centroid at mid-tank
+    assert rest.potential <= rest_upright.potential + settled_x
+    assert rest.potential == pytest.approx(rest_upright.potential - lean * m.sum() * 5.366, rel=1e-9, abs=1e-6)
+
+
 def test_a_periodic_channel_rests_on_its_wall_block_bed():
     """No wall_box: the floor is the top of the wall_block under the fluid, not the domain's lower face (0.15 m
     lower here: the rest state sat M g 0.15 m = 5.9 kJ too low, and the energy guard's bound with it)."""
