@@ -159,8 +159,9 @@ metrics:
 
 def test_isph_defaults_keep_a_users_drop_within_two_percent(tmp_path):
     """Issue 23: a drop with physical keys only (h = 1.3 dx, no shifting or solver key, cfl 0.25) against the
-    ellipse ODE. ISPH's defaults (skillen shift with the surface-band projection, blend 1.0): shape 1.67%, density
-    7.5% (December 2026); with blend 0.1 and the outer-layer projection the centre opened a void."""
+    ellipse ODE. ISPH's defaults (skillen shift with the surface-band projection, blend 1.0; with no body force the
+    signed surface pressure): shape 1.45%, density 5.9% (session 22; 1.67% / 7.5% with the compression-only
+    surface pressure); with blend 0.1 and the outer-layer projection the centre opened a void."""
     path = tmp_path / "drop.yaml"
     path.write_text(USER_DROP)
     cfg = load_config(path, ["solver=isph"])

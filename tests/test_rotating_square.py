@@ -118,10 +118,10 @@ def test_rotating_square_short(tmp_path, solver):
 
 
 def test_isph_without_tension_at_the_surface_starts_from_a_smaller_square(tmp_path):
-    """`isph.surface_pressure: compression` (ISPH's default): p = 0 where the pressure falls toward the surface, so
-    the p = 0 isobar sits on the outer particles, dx/2 inside the edge: a square of side L - dx, p ~ side^2 (the
-    series scales so): -7.8% at dx L/25 (measured -6.1% after the first step), and the arms run ahead (shape
-    1.45% at omega t = 0.5 against 0.16% signed; 2.7% against 0.62% at the scene's dx, t = 1)."""
+    """`isph.surface_pressure: compression` (ISPH's default under a body force): p = 0 where the pressure falls
+    toward the surface, so the p = 0 isobar sits on the outer particles, dx/2 inside the edge: a square of side
+    L - dx, p ~ side^2 (the series scales so): -7.8% at dx L/25 (measured -6.1% after the first step), and the arms
+    run ahead (shape 1.45% at omega t = 0.5 against 0.16% signed; 2.7% against 0.62% at the scene's dx, t = 1)."""
     s = short_run("isph", tmp_path, "particles.dx=0.04", "time.t_end=0.5", "output.every=0.05",
                   "isph.surface_pressure=compression")
     assert s["status"] == "ok"
@@ -130,14 +130,18 @@ def test_isph_without_tension_at_the_surface_starts_from_a_smaller_square(tmp_pa
     assert e["shape_error"] > 0.008
 
 
-def test_the_scene_carries_no_isph_tuning_key():
-    """Issue 23: ISPH runs the square with its defaults and the statement that the fluid is in tension; h and the
-    shift are the scene's shared ones (WCSPH's)."""
+def test_the_scene_carries_no_isph_key():
+    """Issue 23: ISPH runs the square with its defaults; with no body force its surface pressure is signed (auto), h
+    and the shift are the scene's shared ones (WCSPH's)."""
+    import yaml
+    assert "isph" not in yaml.safe_load(CONFIG.read_text())
     cfg = load_config(CONFIG, ["solver=isph"])
-    assert cfg.isph.surface_pressure == "signed"
+    assert cfg.isph.surface_pressure == "auto" and cfg.isph_surface_pressure == "signed"
     assert cfg.h == pytest.approx(1.3 * 0.02)
     assert cfg.shifting_coefficient == 1.0
     assert cfg.cfl == 0.25
+    assert load_config(CONFIG, ["solver=isph", "gravity=[0.0, -9.81]"]).isph_surface_pressure == "compression"
+    assert load_config(CONFIG, ["solver=isph", "central_force.omega=1.0"]).isph_surface_pressure == "compression"
 
 
 @pytest.mark.parametrize("control, bound", [(True, (0.0, 0.005)), (False, (0.015, 1.0))])

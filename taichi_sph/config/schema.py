@@ -274,14 +274,15 @@ class ISPH:
                                       "joins the surface or has a wall in reach. Standing wave (dx 0.025 / 0.0125): "
                                       "period +0.03% / -0.03% against +0.92% / +0.31% with 'fixed'; the oscillating drop's "
                                       "shape error 1.57% against 0.78% (docs/isph.md)", choices=("fixed", "strained"))
-    surface_pressure: str = opt("compression", "sign of a free-surface particle's Dirichlet value p = rho0 |g - a| d: "
-                                               "'compression' = 0 where grad p = rho0 (g - a) points out of the fluid (no "
-                                               "tension at a free surface), 'signed' = -rho0 |g - a| d there, the pressure "
-                                               "at the particle's depth in a fluid in tension (a rotating patch: "
-                                               "configs/rotating_square_2d.yaml, centre pressure at the start -4.1% -> "
-                                               "-0.03%, shape 2.7% -> 0.62%). Not the default: on dam_break_buchner_2d it "
-                                               "ended 1 of 3 perturbed runs ok (docs/isph.md)",
-                                choices=("compression", "signed"))
+    surface_pressure: str = opt(AUTO, "sign of a free-surface particle's Dirichlet value p = rho0 |g - a| d: 'compression' "
+                                      "= 0 where grad p = rho0 (g - a) points out of the fluid (no tension at a free "
+                                      "surface), 'signed' = -rho0 |g - a| d there, the pressure at the particle's depth "
+                                      "in a fluid in tension (a rotating patch: configs/rotating_square_2d.yaml, centre "
+                                      "pressure at the start -4.1% -> +2.6%, shape 2.7% -> 0.62%); 'auto' = signed "
+                                      "where no body force acts (no gravity, no central force: the surface's pressure "
+                                      "gradient is the flow's own acceleration, tension as physical as compression), "
+                                      "compression under a body force (dam_break_buchner_2d with signed: 1 of 3 "
+                                      "perturbed runs ok; docs/isph.md)", choices=(AUTO, "compression", "signed"))
     one_sided_ratio: float | None = opt(None, "a surface candidate (kernel sum below 0.97 of the lattice's) is also free-surface when "
                                              "its own pressure's push on it, grad C . M^-T grad C, exceeds this fraction of its "
                                              "neighbours' share of the projection's diagonal (a one-sided support: its PPE row "
@@ -538,6 +539,13 @@ class Config:
         if self.shifting.enabled is None:
             return self.solver == "isph"
         return self.shifting.enabled
+
+    @property
+    def isph_surface_pressure(self) -> str:
+        """`isph.surface_pressure` resolved: 'auto' is signed with no body force, compression under one."""
+        if self.isph.surface_pressure != AUTO:
+            return self.isph.surface_pressure
+        return "compression" if self.has_gravity or self.central_force.omega > 0 else "signed"
 
     @property
     def shifting_walls(self) -> str:
