@@ -40,9 +40,7 @@ def culprit(cfg: Config, state: dict, criterion: str) -> int:
         bad = ~(np.isfinite(x).all(axis=1) & np.isfinite(v).all(axis=1) & np.isfinite(rho))
         idx = int(np.argmax(bad))
     elif criterion == "left_domain":
-        lo, hi = np.asarray(cfg.domain.lo), np.asarray(cfg.domain.hi)
-        out = ((x < lo) | (x > hi)).any(axis=1)
-        idx = int(np.argmax(out))
+        idx = first_outside(cfg, x) or 0
     elif criterion == "density_error":
         idx = int(np.nanargmax(np.abs(rho - cfg.fluid.rho0)))
     else:
@@ -50,23 +48,37 @@ def culprit(cfg: Config, state: dict, criterion: str) -> int:
     return int(state["id"][f][idx])
 
 
+def first_outside(cfg: Config, x: np.ndarray) -> int | None:
+    """Index (into x) of the first position outside the domain box; None when all are inside."""
+    out = np.flatnonzero(((x < np.asarray(cfg.domain.lo)) | (x > np.asarray(cfg.domain.hi))).any(axis=1))
+    return int(out[0]) if len(out) else None
+
+
+def domain_crossing(cfg: Config, state: dict) -> tuple[str, str] | None:
+    """The first fluid particle outside the domain, as (where: "particle I at (x) m crossed domain.hi[1] = 2.4 m
+    moving at U m/s", the face's key: "domain.hi[1]"); None when all are inside."""
+    f = np.where(state["kind"] == FLUID)[0]
+    x, v = state["x"][f], state["v"][f]
+    i = first_outside(cfg, x)
+    if i is None:
+        return None
+    lo, hi = np.asarray(cfg.domain.lo, dtype=float), np.asarray(cfg.domain.hi, dtype=float)
+    axis = int(np.argmax(np.maximum(lo - x[i], x[i] - hi)))
+    side, bound = ("lo", lo[axis]) if x[i, axis] < lo[axis] else ("hi", hi[axis])
+    face = f"domain.{side}[{axis}]"
+    at = ", ".join(f"{c:.4g}" for c in x[i])
+    return (f"particle {int(state['id'][f][i])} at ({at}) m crossed {face} = {bound:.4g} m moving at "
+            f"{float(np.linalg.norm(v[i])):.3g} m/s", face)
+
+
 def left_domain_detail(cfg: Config, state: dict, count: int) -> str:
     """What a user reads when fluid leaves the domain: how many, where the first one crossed which face and how
     fast, and the two ways out (room for spray, or reflecting faces) beside the third (a blow-up)."""
-    f = np.where(state["kind"] == FLUID)[0]
-    x, v = state["x"][f], state["v"][f]
-    lo, hi = np.asarray(cfg.domain.lo, dtype=float), np.asarray(cfg.domain.hi, dtype=float)
-    out = np.where(((x < lo) | (x > hi)).any(axis=1))[0]
     plural = "particle" if count == 1 else "particles"
-    if len(out) == 0:
+    crossing = domain_crossing(cfg, state)
+    if crossing is None:
         return f"{count} {plural} outside the domain"
-    i = int(out[0])
-    axis = int(np.argmax(np.maximum(lo - x[i], x[i] - hi)))
-    side, bound = ("lo", lo[axis]) if x[i, axis] < lo[axis] else ("hi", hi[axis])
-    at = ", ".join(f"{c:.4g}" for c in x[i])
-    return (f"{count} fluid {plural} outside the domain: particle {int(state['id'][f][i])} at ({at}) m crossed "
-            f"domain.{side}[{axis}] = {bound:.4g} m moving at {float(np.linalg.norm(v[i])):.3g} m/s. Spray from a "
-            f"splash needs room: move domain.{side}[{axis}] out, or set `reflecting.enabled: true` to bounce "
-            "particles off the domain faces; fluid leaving fast from inside the body is a blow-up (a smaller "
-            "time.cfl, or the solver's stabilisers)")
-
+    where, face = crossing
+    return (f"{count} fluid {plural} outside the domain: {where}. Spray from a splash needs room: move {face} out, "
+            "or set `reflecting.enabled: true` to bounce particles off the domain faces; fluid leaving fast from "
+            "inside the body is a blow-up (a smaller time.cfl, or the solver's stabilisers)")

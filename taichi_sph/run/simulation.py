@@ -23,7 +23,7 @@ from taichi_sph.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, RenderUn
 from taichi_sph.run.checks import a_priori_checks
 from taichi_sph.run.disk import is_no_space, no_space_failure
 from taichi_sph.run.energy_watch import ENERGY_COLUMNS, EnergyWatch
-from taichi_sph.run.guards import culprit, guard_violation, left_domain_detail
+from taichi_sph.run.guards import culprit, domain_crossing, guard_violation, left_domain_detail
 from taichi_sph.run.interrupt import sigint_calls
 from taichi_sph.run.lock import held
 from taichi_sph.run.loop_state import LoopState, RunResult
@@ -317,8 +317,9 @@ class Simulation:
         if outside > 0:
             loop = self.loop
             if not loop.outside_note:
-                detail = left_domain_detail(self.cfg, self.solver.host_state(), outside)
-                loop.outside_note = f"t = {self.solver.t:.4g} s: {detail.split(': ', 1)[-1].split('. ')[0]}"
+                crossing = domain_crossing(self.cfg, self.solver.host_state())
+                where = crossing[0] if crossing else f"{outside} particles"
+                loop.outside_note = f"t = {self.solver.t:.4g} s: {where}"
             loop.max_outside = max(loop.max_outside, outside)
 
     def _instability(self, bad: dict) -> dict:

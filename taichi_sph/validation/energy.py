@@ -67,6 +67,11 @@ def _gravity_axis(cfg: Config) -> int | None:
     return int(axes[0]) if len(axes) == 1 else -1
 
 
+def _gravity_along_periodic_axis(cfg: Config) -> bool:
+    """Gravity has a component along a periodic axis (a driven channel: no rest state, energy enters)."""
+    return any(g != 0 and cfg.periodic[a] for a, g in enumerate(cfg.gravity_vector))
+
+
 def _container(cfg: Config):
     """Inner box of the first wall_box; else the domain box with its floor (along gravity) moved to the face of the
     nearest wall_block the fluid bodies rest on or fall onto: a periodic channel's bed. (With the domain's own
@@ -118,10 +123,9 @@ def rest_state(cfg: Config, mass: np.ndarray) -> RestState:
         return RestState(0.0, 0.0, True)
     if axis is None and omega == 0:
         return RestState(0.0, 0.0, True)
-    gvec = np.asarray(cfg.gravity_vector, dtype=np.float64)
-    if axis is not None and (omega > 0 or cfg.gravity_ramp > 0
-                             or any(gvec[a] != 0 and cfg.periodic[a] for a in range(cfg.dim))):
+    if axis is not None and (omega > 0 or cfg.gravity_ramp > 0 or _gravity_along_periodic_axis(cfg)):
         return RestState(0.0, 0.0, False)
+    gvec = np.asarray(cfg.gravity_vector, dtype=np.float64)
     if axis is not None:
         tilted = axis < 0
         if tilted:  # the dominant component stacks the layers; the others are bounded below (tilted_rest_bound)
@@ -175,8 +179,7 @@ def energy_input(cfg: Config) -> str | None:
             return "moving walls"
     if cfg.gravity_ramp > 0:
         return "a gravity ramp"
-    g = np.asarray(cfg.gravity_vector, dtype=np.float64)
-    if any(g[a] != 0 and cfg.periodic[a] for a in range(cfg.dim)):
+    if _gravity_along_periodic_axis(cfg):
         return "a body force along a periodic axis"
     if _gravity_axis(cfg) is not None and cfg.central_force.omega > 0:
         return "no rest state (gravity with a central force)"
