@@ -55,7 +55,8 @@ SLOW = {
     "test_standing_wave.py::test_wcsph_defaults_keep_the_wave_for_three_periods": "~70 s quiet, 134 s loaded: to t = 5",
     "test_standing_wave.py::test_the_wall_particles_in_the_shift_feed_the_wave": "~40 s: to t = 5",
     "test_standing_wave.py::test_isph_defaults_keep_the_3d_wave": "~30-45 s: 3D, 8k fluid, to t = 5",
-    "test_standing_wave.py::test_isph_with_the_strained_surface_depth_keeps_the_waves_period": "~15-40 s: to t = 5",
+    "test_standing_wave.py::test_the_fixed_surface_depth_makes_the_wave_slow": "~15-40 s: to t = 5",
+    "test_standing_wave.py::test_isph_defaults_keep_the_wave_at_twice_the_resolution": "~25-50 s: 12.8k fluid, to t = 5",
     # the three kill moments: each is a dam-break child process killed, then resumed in-process, ~23 s; the
     # first one in the module also runs the uninterrupted reference (83 s)
     "test_resume.py::test_killed_run_resumes_to_the_uninterrupted_state[6]": "~23-83 s, a kill moment",

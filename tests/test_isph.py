@@ -422,12 +422,26 @@ def test_the_surface_layer_keeps_its_area(grad_v, rate):
     assert depth == pytest.approx(0.01 * (1.0 + 0.01 * rate), rel=1e-6)
 
 
-def test_strained_depth_is_an_isph_option():
-    cfg = load_config(bundled_configs_dir() / "standing_wave_2d.yaml", ["solver=isph"])
-    assert cfg.isph.surface_depth == "fixed"
-    strained = load_config(bundled_configs_dir() / "standing_wave_2d.yaml",
+@pytest.mark.parametrize("scene, depth", [
+    ("standing_wave_2d.yaml", "strained"),  # gravity alone: the surface layer thickens under a crest
+    ("dam_break_2d.yaml", "strained"),
+    ("oscillating_drop_2d.yaml", "fixed"),  # a central force: the strained depth took its shape to 1.57%
+    ("elliptical_drop_2d.yaml", "fixed"),   # no body force
+    ("rotating_square_2d.yaml", "fixed"),
+])
+def test_the_surface_depth_resolves_by_body_force(scene, depth):
+    """`isph.surface_depth: auto` (the default): strained under gravity alone, fixed otherwise (docs/isph.md)."""
+    cfg = load_config(bundled_configs_dir() / scene, ["solver=isph"])
+    assert cfg.isph.surface_depth == "auto"
+    assert cfg.isph_surface_depth == depth
+
+
+def test_the_surface_depth_can_be_chosen():
+    fixed = load_config(bundled_configs_dir() / "standing_wave_2d.yaml", ["solver=isph", "isph.surface_depth=fixed"])
+    assert fixed.isph_surface_depth == "fixed"
+    strained = load_config(bundled_configs_dir() / "oscillating_drop_2d.yaml",
                            ["solver=isph", "isph.surface_depth=strained"])
-    assert strained.isph.surface_depth == "strained"
+    assert strained.isph_surface_depth == "strained"
     with pytest.raises(Exception, match="surface_depth"):
         load_config(bundled_configs_dir() / "standing_wave_2d.yaml", ["isph.surface_depth=deep"])
 

@@ -13,7 +13,7 @@ from taichi_sph.cli.main import main
 from taichi_sph.config.loader import bundled_configs_dir, load_config
 from taichi_sph.studies.compare import SOLVERS, derive_config
 from taichi_sph.studies.validate import report_markdown, validation_scenes
-from taichi_sph.studies.validate_checks import QUICK, checks_for, quick_overrides
+from taichi_sph.studies.validate_checks import CHECKS, QUICK, checks_for, quick_overrides
 from taichi_sph.validation import reference as ref
 from taichi_sph.validation.metrics.flows import CavityMetric
 
@@ -181,3 +181,10 @@ def test_a_quick_convergence_study_adds_its_runs_and_section(tmp_path, monkeypat
     assert (tmp_path / "runs" / "hydrostatic_2d-wcsph-dx0.04" / "summary.json").exists()
     assert (out.parent / "validation_report_figures" / "hydrostatic_2d_convergence.png").stat().st_size > 1000
     assert len(table_rows(text.split("## Convergence")[0])) == 1    # the main table: the scene's own run only
+
+
+def test_the_standing_wave_period_has_issue_23s_target():
+    """Issue 23: the period within 0.5% of linear theory (ISPH's +0.14% passes, WCSPH's -1.01% does not)."""
+    period = next(c for c in CHECKS["standing_wave"] if c.key == "period_error")
+    assert period.target == 0.005
+    assert period.passes(0.0014) and not period.passes(-0.0101)

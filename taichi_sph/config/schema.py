@@ -267,13 +267,15 @@ class ISPH:
                           choices=("plain", "corrected"))
     ppe: PPE = opt(factory=PPE, doc="PPE solver settings")
     free_surface_threshold: float = opt(0.8, "a particle is free-surface when its kernel sum / lattice kernel sum is below this", positive=True)
-    surface_depth: str = opt("fixed", "depth d of a free-surface particle under the surface in its Dirichlet value "
-                                      "p = rho0 |g - a| d: 'fixed' d = dx/2, or 'strained' (experimental) d carried "
-                                      "with the surface's own stretching, d <- d (1 - dt div_t v), div_t v = div v - "
-                                      "n . grad v . n (the layer above a particle keeps its area), dx/2 where a particle "
-                                      "joins the surface or has a wall in reach. Standing wave (dx 0.025 / 0.0125): "
-                                      "period +0.03% / -0.03% against +0.92% / +0.31% with 'fixed'; the oscillating drop's "
-                                      "shape error 1.57% against 0.78% (docs/isph.md)", choices=("fixed", "strained"))
+    surface_depth: str = opt(AUTO, "depth d of a free-surface particle under the surface in its Dirichlet value "
+                                   "p = rho0 |g - a| d: 'fixed' d = dx/2, or 'strained' d carried with the surface's "
+                                   "own stretching, d <- d (1 - dt div_t v), div_t v = div v - n . grad v . n (the layer "
+                                   "above a particle keeps its area, so it thickens under a crest), dx/2 where a particle "
+                                   "joins the surface or has a wall in reach; 'auto' = strained under gravity alone, "
+                                   "fixed with a central force or no body force. Standing wave (dx 0.025 / 0.0125): "
+                                   "period +0.14% / +0.10% strained against +0.97% / +0.51% fixed; the oscillating drop "
+                                   "(central force) 1.57% shape strained against 0.76% fixed (docs/isph.md)",
+                             choices=(AUTO, "fixed", "strained"))
     surface_pressure: str = opt(AUTO, "sign of a free-surface particle's Dirichlet value p = rho0 |g - a| d: 'compression' "
                                       "= 0 where grad p = rho0 (g - a) points out of the fluid (no tension at a free "
                                       "surface), 'signed' = -rho0 |g - a| d there, the pressure at the particle's depth "
@@ -546,6 +548,13 @@ class Config:
         if self.isph.surface_pressure != AUTO:
             return self.isph.surface_pressure
         return "compression" if self.has_gravity or self.central_force.omega > 0 else "signed"
+
+    @property
+    def isph_surface_depth(self) -> str:
+        """`isph.surface_depth` resolved: 'auto' is strained under gravity alone, fixed otherwise."""
+        if self.isph.surface_depth != AUTO:
+            return self.isph.surface_depth
+        return "strained" if self.has_gravity and self.central_force.omega == 0 else "fixed"
 
     @property
     def shifting_walls(self) -> str:

@@ -69,7 +69,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.one_sided = ic.one_sided_ratio is not None
         self.one_sided_ratio = ic.one_sided_ratio if self.one_sided else 0.0
         self.surface_depth = 0.5 * self.dx
-        self.strained_depth = ic.surface_depth == "strained"
+        self.strained_depth = cfg.isph_surface_depth == "strained"
         self.surface_tension = cfg.isph_surface_pressure == "signed"
         self.lattice_sum = lattice_kernel_sum(cfg, self.kernel.w_np)
         self.grad_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np)

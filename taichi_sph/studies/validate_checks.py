@@ -2,7 +2,7 @@
 published figure) it is compared with, and the target where one is documented; and the `--quick` settings.
 
 Targets come from the issues that set them (26: hydrostatic 0.1%, cavity Re 1000 0.02; 15: free drops and the
-rotating square, shape < 1%) and docs/validation.md (dam break: raw < 0.25, shifted < 0.04); a metric without a
+rotating square, shape < 1%; 23: the standing wave's period < 0.5%) and docs/validation.md (dam break: raw < 0.25, shifted < 0.04); a metric without a
 documented target is reported without a verdict. `passes` takes |ours| <= target (signed errors included).
 
 `--quick` runs every scene coarse and short (QUICK: `--set`-style overrides per bundled scene; a scene not listed
@@ -63,7 +63,7 @@ CHECKS: dict[str, tuple[Check, ...]] = {
     "drop_ellipse": (Check("shape_error", "semi-axis error, max over the run", ELLIPSE_ODE, 0.01),),
     "rotating_square": (Check("shape_error", "I and Q error, max over the run", "converged run of ours "
                               "(rotating_square_converged.csv)", 0.01),),
-    "standing_wave": (Check("period_error", "period error", "linear theory"),
+    "standing_wave": (Check("period_error", "period error", "linear theory", 0.005),
                       Check("amplitude_ratio", "amplitude / viscous envelope", "linear theory")),
 }
 CAVITY_TARGETS = {1000: 0.02}  # issue 26: Re 1000 at 100 x 100 particles
