@@ -472,3 +472,45 @@ def test_a_moving_lid_bounds_the_first_step():
     assert solver.wall_speed == pytest.approx(1.0)
     dt = solver.step()
     assert dt == pytest.approx(0.25 * cfg.particles.dx * cfg.particles.hdx / 1.0, rel=1e-6)
+
+
+def test_spray_on_a_wall_is_free_surface():
+    """A particle alone in a wall corner, and a pair on a wall (the walls fill their kernel sums), have no fluid to
+    hold their PPE rows: they are Dirichlet particles (physics/free_surface.py isolated_from_fluid;
+    dam_break_buchner_2d: such a particle took 0.36 MPa, then -16 MPa, and threw its neighbour out at 88 m/s). The
+    column's own corner particle, whose fluid neighbours give 0.29-0.33 of the lattice's kernel sum, stays an
+    unknown."""
+    dx = 0.02
+    cfg = tank_cfg(dx=dx, particles={"hdx": 1.3},  # ISPH's default h
+                   bodies=[{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.2, 0.3]},
+                           {"type": "fluid_block", "lo": [0.5 - 5 * dx, 0.0], "hi": [0.5, dx]},
+                           {"type": "fluid_block", "lo": [0.5 - 5 * dx, 0.3], "hi": [0.5, 0.3 + dx]},
+                           {"type": "wall_box", "lo": [0.0, 0.0], "hi": [0.5, 0.6], "layers": 4, "open_top": True}])
+    arrays = build_particles(cfg)
+    fluid = np.flatnonzero(arrays.kind == 0)
+    corner_row = fluid[(arrays.x[fluid, 0] > 0.4) & (arrays.x[fluid, 1] < 0.1)]
+    wall_row = fluid[(arrays.x[fluid, 0] > 0.4) & (arrays.x[fluid, 1] > 0.1)]
+    # as the Buchner front left them: one pressed into the corner (0.3 dx from the side wall's face, 0.25 dx off
+    # the floor), a pair 0.45 dx apart on the side wall, and a far fluid neighbour of each 2.2 dx away, inside the
+    # cone scan's reach (so the cone does not flag them); the rest parked out of reach
+    parked = np.concatenate([corner_row[2:], wall_row[3:]])
+    arrays.x[parked] = np.column_stack([0.25 + 0.05 * np.arange(len(parked)), np.full(len(parked), 0.5)])
+    spray = [corner_row[0], wall_row[0], wall_row[1]]
+    arrays.x[corner_row[0]] = [0.5 - 0.3 * dx, 0.25 * dx]
+    arrays.x[corner_row[1]] = arrays.x[corner_row[0]] + 2.2 * dx * np.array([-0.7071, 0.7071])
+    arrays.x[wall_row[0]] = [0.5 - 0.3 * dx, 0.3]
+    arrays.x[wall_row[1]] = [0.5 - 0.3 * dx, 0.3 + 0.45 * dx]
+    arrays.x[wall_row[2]] = [0.5 - 2.3 * dx, 0.3 + 0.2 * dx]
+    marks = arrays.x[spray].copy()
+    solver = ISPHSolver(cfg, arrays)
+    solver.prepare()
+    x = solver.particles.x.to_numpy()  # (the solver's own particle order)
+    fluid = solver.particles.kind.to_numpy() == 0
+    at = [int(np.argmin(np.linalg.norm(x - m, axis=1))) for m in marks]
+    roles = solver.ppe.role.to_numpy()
+    column_corner = np.flatnonzero(fluid & (np.abs(x[:, 0] - dx / 2) < 1e-6) & (np.abs(x[:, 1] - dx / 2) < 1e-6))
+    assert len(column_corner) == 1
+    # the walls fill their kernel sums: the kernel-sum test alone takes them for interior particles
+    assert (solver.rho_summation.to_numpy()[at] > cfg.isph.free_surface_threshold * 1000.0).all()
+    assert (roles[at] == DIRICHLET).all(), roles[at]
+    assert roles[column_corner[0]] == UNKNOWN

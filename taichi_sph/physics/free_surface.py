@@ -14,6 +14,10 @@ import taichi as ti
 SURFACE_CANDIDATE = 0.97
 # half-angle of the scan cone around the outward normal: 45 degrees
 SURFACE_CONE_COS = math.cos(math.pi / 4)
+# below this share of the lattice's kernel sum from its fluid neighbours (itself left out, each counted at no less
+# than dx) a particle is spray: a fluid particle in a filled tank's corner has 0.29-0.33 (Wendland C2, h = 1.3-2 dx),
+# one nearest neighbour is 0.12 (h = 1.3 dx) / 0.09 (2 dx), a pair alone on a wall ~0.12
+MIN_FLUID_SHARE = 0.15
 
 
 @ti.func
@@ -21,6 +25,18 @@ def kernel_sum_ratio(sum_w: float, volume: float, lattice_sum: float):
     """c_a = V sum_b W_ab / sum_lattice V W, the sum over every neighbour b (fluid and wall) and a itself:
     1 inside a full lattice, about 1/2 at a flat free surface, below 1 next to any hole."""
     return volume * sum_w / lattice_sum
+
+
+@ti.func
+def isolated_from_fluid(fluid_sum_w: float, volume: float, lattice_sum: float) -> bool:
+    """Spray on a wall: V sum_{b fluid, b != a} W(max(r_ab, dx)) / sum_lattice V W < MIN_FLUID_SHARE. Its kernel
+    sum is the walls' (full, so the kernel-sum test does not flag it), but its PPE row has almost no fluid coupling:
+    the walls' Neumann condition holds it, and its pressure is a source over a near-zero diagonal. A neighbour
+    nearer than dx counts as one at dx: two particles pressed together on a wall hold each other no better than
+    one. dam_break_buchner_2d: a particle left in the far corner by the front took 0.36 MPa, then -16 MPa, and
+    threw its neighbour out at 88 m/s; a pair 0.45 dx apart running up the wall swung +-0.5 .. 74 MPa in ten
+    steps. It is free surface."""
+    return volume * fluid_sum_w < MIN_FLUID_SHARE * lattice_sum
 
 
 @ti.func

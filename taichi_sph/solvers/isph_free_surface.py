@@ -11,6 +11,7 @@ from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradien
 from taichi_sph.physics.free_surface import (
     SURFACE_CANDIDATE,
     in_surface_cone,
+    isolated_from_fluid,
     linear_fit_at_particle,
     projection_self_ratio,
     strained_surface_depth,
@@ -64,6 +65,7 @@ class FreeSurfaceDetection:
                                      moment=ti.Matrix.zero(float, self.dim, self.dim),
                                      grad_w_moment=ti.Matrix.zero(float, self.dim, self.dim),
                                      acc_sum=P.mass[a] * self.kernel.w0 * P.acc[a], w_fluid=P.mass[a] * self.kernel.w0,
+                                     w_held=0.0,
                                      r_sum=ti.Vector.zero(float, self.dim),
                                      rr_sum=ti.Matrix.zero(float, self.dim, self.dim),
                                      acc_r_sum=ti.Matrix.zero(float, self.dim, self.dim),
@@ -83,7 +85,9 @@ class FreeSurfaceDetection:
                     # a fluid that fills its container at the start has no free surface to find (confinement)
                     open_surface = self.surface_possible[None] != 0
                     candidate = open_surface and rho < SURFACE_CANDIDATE * self.rho0
-                    surface = open_surface and rho < self.surface_threshold * self.rho0
+                    # spray on a wall: the walls fill its kernel sum, no fluid holds its PPE row
+                    spray = isolated_from_fluid(sums.w_held, 1.0 / self.rho0, self.lattice_sum)
+                    surface = open_surface and (rho < self.surface_threshold * self.rho0 or spray)
                     if not surface and candidate:
                         cone = ti.Struct(outward=-grad_c.normalized(1e-12), surface=True)
                         self.nsearch.for_each_neighbor(a, P.x, self.surface_cone_pair, cone)
@@ -129,6 +133,7 @@ class FreeSurfaceDetection:
             r_ba = -r_ab
             sums.acc_sum += mw * P.acc[b]
             sums.w_fluid += mw
+            sums.w_held += P.mass[b] * self.kernel.w(ti.max(r, self.dx))  # a neighbour nearer than dx counts as one at dx
             sums.r_sum += mw * r_ba
             sums.rr_sum += mw * r_ba.outer_product(r_ba)
             sums.acc_r_sum += mw * P.acc[b].outer_product(r_ba)
