@@ -57,6 +57,8 @@ SLOW = {
     "test_standing_wave.py::test_isph_defaults_keep_the_3d_wave": "~30-45 s: 3D, 8k fluid, to t = 5",
     "test_standing_wave.py::test_the_fixed_surface_depth_makes_the_wave_slow": "~15-40 s: to t = 5",
     "test_standing_wave.py::test_isph_defaults_keep_the_wave_at_twice_the_resolution": "~25-50 s: 12.8k fluid, to t = 5",
+    # the deep-water wave with the defaults stays default (~11 s); the fixed-depth failing mode is slow
+    "test_standing_wave.py::test_the_fixed_depth_makes_a_deep_water_wave_slow": "~11-20 s: to t = 3.4",
     # the three kill moments: each is a dam-break child process killed, then resumed in-process, ~23 s; the
     # first one in the module also runs the uninterrupted reference (83 s)
     "test_resume.py::test_killed_run_resumes_to_the_uninterrupted_state[6]": "~23-83 s, a kill moment",
