@@ -273,7 +273,7 @@ class ISPH:
                                    "above a particle keeps its area, so it thickens under a crest), dx/2 where a particle "
                                    "joins the surface or has a wall in reach; 'auto' = strained under gravity alone, "
                                    "fixed with a central force or no body force. Standing wave (dx 0.025 / 0.0125): "
-                                   "period +0.14% / +0.10% strained against +0.97% / +0.51% fixed; the oscillating drop "
+                                   "period +0.14% / +0.07% strained against +0.97% / +0.51% fixed; the oscillating drop "
                                    "(central force) 1.57% shape strained against 0.76% fixed (docs/isph.md)",
                              choices=(AUTO, "fixed", "strained"))
     surface_pressure: str = opt(AUTO, "sign of a free-surface particle's Dirichlet value p = rho0 |g - a| d: 'compression' "
