@@ -1,5 +1,5 @@
-"""Free-surface indicators: the normalised kernel sum, the Marrone et al. (2010) cone scan and the
-projection's self ratio of a one-sided support.
+"""Free-surface indicators: the normalised kernel sum, the Marrone et al. (2010) cone scan, the fluid share of
+spray on a wall and the projection's self ratio of a one-sided support.
 
 ISPH flags its free-surface (Dirichlet) particles with both (solvers/isph.py); the particle-order
 diagnostics (particle_order.py) apply the same test to either solver at output times.

@@ -1,5 +1,5 @@
 """ISPH's first pass of a step: the summation density, which fluid particles are at the free surface (kernel sum,
-cone scan, one-sided ratio: physics/free_surface.py) and their Dirichlet pressure (physics/ppe_terms.py
+cone scan, spray on a wall, one-sided ratio: physics/free_surface.py) and their Dirichlet pressure (physics/ppe_terms.py
 free_surface_pressure), with the estimate of grad p = rho0 (g - a) that the rows near the surface continue the
 pressure with. A mixin of ISPHSolver: its methods read the solver's fields and settings.
 """

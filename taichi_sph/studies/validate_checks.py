@@ -2,8 +2,9 @@
 published figure) it is compared with, and the target where one is documented; and the `--quick` settings.
 
 Targets come from the issues that set them (26: hydrostatic 0.1%, cavity Re 1000 0.02; 15: free drops and the
-rotating square, shape < 1%; 23: the standing wave's period < 0.5%) and docs/validation.md (dam break: raw < 0.25, shifted < 0.04); a metric without a
-documented target is reported without a verdict. `passes` takes |ours| <= target (signed errors included).
+rotating square, shape < 1%; 23: the standing wave's period < 0.5%) and docs/validation.md (dam break: raw < 0.25,
+shifted < 0.04); a metric without a documented target is reported without a verdict. `passes` takes
+|ours| <= target (signed errors included).
 
 `--quick` runs every scene coarse and short (QUICK: `--set`-style overrides per bundled scene; a scene not listed
 gets its dx doubled and its end time quartered): it checks that every scene runs and its metric reads, in a few
