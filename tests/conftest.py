@@ -51,12 +51,12 @@ def taichi_cpu():
 SLOW = {
     "test_drops.py::test_isph_defaults_keep_a_users_drop_within_two_percent": "71 s under load 6 (~25 s quiet): ISPH to t = 0.4",
     # the wave with ISPH's defaults over 3 periods (the two short unstable set-ups stay default)
-    "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods": "~35 s quiet, 70 s loaded: to t = 5",
+    "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods[0.025]": "~10-35 s: to t = 5",
+    "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods[0.0125]": "~25-50 s: 12.8k fluid, to t = 5",
     "test_standing_wave.py::test_wcsph_defaults_keep_the_wave_for_three_periods": "~70 s quiet, 134 s loaded: to t = 5",
     "test_standing_wave.py::test_the_wall_particles_in_the_shift_feed_the_wave": "~40 s: to t = 5",
     "test_standing_wave.py::test_isph_defaults_keep_the_3d_wave": "~30-45 s: 3D, 8k fluid, to t = 5",
     "test_standing_wave.py::test_the_fixed_surface_depth_makes_the_wave_slow": "~15-40 s: to t = 5",
-    "test_standing_wave.py::test_isph_defaults_keep_the_wave_at_twice_the_resolution": "~25-50 s: 12.8k fluid, to t = 5",
     # the deep-water wave with the defaults stays default (~11 s); the fixed-depth failing mode is slow
     "test_standing_wave.py::test_the_fixed_depth_makes_a_deep_water_wave_slow": "~11-20 s: to t = 3.4",
     # the three kill moments: each is a dam-break child process killed, then resumed in-process, ~23 s; the

@@ -38,11 +38,13 @@ def test_wcsph_defaults_keep_the_wave_for_three_periods(tmp_path):
     assert s["energy"]["growth"] < 0.1
 
 
-def test_isph_defaults_keep_the_wave_for_three_periods(tmp_path):
+@pytest.mark.parametrize("dx", [0.025, 0.0125])
+def test_isph_defaults_keep_the_wave_for_three_periods(tmp_path, dx):
     """ISPH's defaults (`shifting.walls: auto` = the mirror since session 22, `isph.surface_depth: auto` = strained
-    under gravity since session 23): period +0.14%, asymmetry 0.07%, amplitude 1.008, energy -0.05% a period at
-    dx 0.025: every one of issue 23's wave targets."""
-    s = wave(tmp_path, 5.0)
+    under gravity since session 23), at 40 and 80 particles over the depth (3.2k / 12.8k fluid): period +0.14% /
+    +0.07%, asymmetry 0.07% / 0.13%, amplitude 1.008 / 0.997, energy -0.05% / -0.18% a period, crest-phase peak
+    +13% / +12%: every one of issue 23's wave targets at both resolutions."""
+    s = wave(tmp_path, 5.0, f"particles.dx={dx}")
     assert s["status"] == "ok" and s["energy"]["guard"] == "on"
     e = s["errors"]
     assert abs(e["period_error"]) < 0.005  # the issue's target
@@ -50,17 +52,6 @@ def test_isph_defaults_keep_the_wave_for_three_periods(tmp_path):
     assert 0.97 < e["amplitude_ratio"] < 1.03
     assert -0.01 < e["energy_change_per_period"] < 0.005  # the issue's target
     assert s["energy"]["growth"] < 0.25  # the crest-phase peak
-
-
-def test_isph_defaults_keep_the_wave_at_twice_the_resolution(tmp_path):
-    """The same at dx 0.0125 (80 particles over the depth, 12.8k fluid): +0.07% / 0.13% / 0.997 / -0.18% a period."""
-    s = wave(tmp_path, 5.0, "particles.dx=0.0125")
-    assert s["status"] == "ok" and s["energy"]["guard"] == "on"
-    e = s["errors"]
-    assert abs(e["period_error"]) < 0.005
-    assert abs(e["period_asymmetry"]) < 0.005
-    assert 0.97 < e["amplitude_ratio"] < 1.03
-    assert -0.01 < e["energy_change_per_period"] < 0.005
 
 
 def test_the_fixed_surface_depth_makes_the_wave_slow(tmp_path):
