@@ -21,7 +21,7 @@ from taichi_sph.studies.compare import final_snapshot
 from taichi_sph.studies.plots import pyplot, save_figure, solver_colour
 from taichi_sph.validation import reference as ref
 from taichi_sph.validation.metrics import METRICS
-from taichi_sph.validation.metrics.flows import binned_profile, centerline_samples
+from taichi_sph.validation.metrics.flows import binned_profile, centreline_profiles
 
 
 @dataclass
@@ -146,16 +146,15 @@ def _cavity(cfg: Config, spec: Metric, runs) -> list[Panel]:
     v_panel = Panel("v on y = L/2 (final output)", "x / L", "v / U", (x_r, v_r, label, "o"))
     fluid = next((b for b in cfg.bodies if b.type == "fluid_block"), None)
     lo = (float(fluid.lo[0]), float(fluid.lo[1])) if fluid is not None else (0.0, 0.0)
-    band = cfg.particles.dx / spec.width
+    along = np.arange(0.5 * cfg.particles.dx, spec.width, 0.5 * cfg.particles.dx) / spec.width
     for solver, run_dir in runs.items():
         s = _fluid(run_dir)
         if s is None:
             continue
-        (ys, us), (xs, vs) = centerline_samples(s["x"], s["v"], spec.width, lo, cfg.particles.dx)
-        y_b, u_b = binned_profile(ys, us / spec.lid_velocity, 0.0, 1.0, band)
-        x_b, v_b = binned_profile(xs, vs / spec.lid_velocity, 0.0, 1.0, band)
-        u_panel.ours[solver] = (u_b, y_b)
-        v_panel.ours[solver] = (x_b, v_b)
+        u_s, v_s = centreline_profiles(s["x"], s["v"], spec.width, lo, cfg.particles.dx, along, along)
+        u_ok, v_ok = np.isfinite(u_s), np.isfinite(v_s)
+        u_panel.ours[solver] = (u_s[u_ok] / spec.lid_velocity, along[u_ok])
+        v_panel.ours[solver] = (along[v_ok], v_s[v_ok] / spec.lid_velocity)
     return [u_panel, v_panel]
 
 
