@@ -17,7 +17,9 @@ from taichi_sph.config.docs import config_reference
 from taichi_sph.config.loader import apply_overrides, bundled_configs_dir, config_from_dict, load_config, to_dict
 from taichi_sph.config.schema import AUTO, Config, Fluid, Particles, Time
 from taichi_sph.errors import ConfigError
+from taichi_sph.run.checks import a_priori_checks
 from taichi_sph.run.output import RunFolder
+from taichi_sph.scene.bodies import build_particles
 
 REPO = Path(__file__).resolve().parent.parent
 BUNDLED = sorted(bundled_configs_dir().glob("*.yaml"))
@@ -43,9 +45,24 @@ def test_defaults_fill_in(tmp_path):
     assert cfg.particles.dx == 0.02 and cfg.particles.kernel == "wendland_c2"
     assert cfg.time.dt == AUTO and cfg.fluid.c0 == AUTO
     body = cfg.bodies[0]
-    assert body.type == "fluid_block" and body.velocity is None and body.layers == 3
+    assert body.type == "fluid_block" and body.velocity is None and body.layers is None
     assert isinstance(body.lo, tuple) and body.lo == (0.0, 0.0)
     assert cfg.gravity is None and cfg.probes == () and cfg.metrics == ()
+
+
+def test_wall_layers_default_to_the_kernel_support(tmp_path):
+    """A wall_box with no `layers` gets as many as the run's kernel support spans: a user's scene with WCSPH's
+    default h = 2 dx (Wendland C2, support 4 dx) got 3 and a warning to set 4 before session 24."""
+    path = write(tmp_path / "parent.yaml", PARENT.replace("kernel: cubic_spline", "kernel: wendland_c2"))
+    wcsph, isph = load_config(path), load_config(path, ["solver=isph"])
+    box = wcsph.bodies[1]
+    assert box.layers is None and wcsph.wall_layers(box) == 4 and isph.wall_layers(box) == 3  # h 2 dx / 1.3 dx
+    assert not [c for c in a_priori_checks(wcsph) + a_priori_checks(isph) if c.name == "wall_layers"]
+    n_wall = {cfg.solver: build_particles(cfg).n_wall for cfg in (wcsph, isph)}
+    assert n_wall["wcsph"] > n_wall["isph"]
+    pinned = load_config(path, ["bodies=" + repr([{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.5, 0.5]},
+                                                  {"type": "wall_box", "lo": [0.0, 0.0], "hi": [2.0, 1.0], "layers": 2}])])
+    assert pinned.wall_layers(pinned.bodies[1]) == 2
 
 
 def test_name_in_file_wins_over_stem(tmp_path):

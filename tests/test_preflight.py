@@ -115,8 +115,9 @@ def test_dam_break_3d_at_half_a_millimetre_is_refused_in_under_two_seconds(tmp_p
 def test_memory_refusal_names_count_need_available_and_the_dx_that_fits(capsys, workdir, good_config, monkeypatch):
     monkeypatch.setattr(memory, "host_memory_available", lambda: 0.24 * memory.GIB)
     line = run_and_check(capsys, workdir, good_config, "--set", "particles.dx=0.001", "--set", "render.enabled=false")[-1]
-    # the good config sets no hdx: WCSPH's default h = 2 dx (~50 neighbours a particle) sizes the lists
-    assert ("good: refused: 259018 particles (250000 fluid + 9018 wall at dx = 0.001) need ~0.6 GiB of host memory, "
+    # the good config sets no hdx: WCSPH's default h = 2 dx (~50 neighbours a particle) sizes the lists, and no
+    # wall layers: 4, the support of h = 2 dx
+    assert ("good: refused: 262032 particles (250000 fluid + 12032 wall at dx = 0.001) need ~0.6 GiB of host memory, "
             "0.2 GiB available: particles.dx >= ") in line
     dx = float(line.split("particles.dx >= ")[1].split()[0])
     assert 0.001 < dx < 0.005
@@ -143,7 +144,7 @@ def test_gpu_memory_refusal(capsys, workdir, good_config, monkeypatch):
 def test_check_prints_the_estimate(capsys, good_config):
     rc, out, err = cli(capsys, "check", good_config)
     assert rc == 0, err
-    assert "memory: 298 particles (100 fluid + 198 wall)" in out and "GiB host memory" in out and "available" in out
+    assert "memory: 372 particles (100 fluid + 272 wall)" in out  # 4 wall layers: the support of h = 2 dx and "GiB host memory" in out and "available" in out
 
 
 # ----------------------------------------------------------------------------- refusals: severe checks

@@ -20,6 +20,9 @@ AUTO = "auto"
 # energy -0.3% a period: standing_wave_2d at dx 0.025). ISPH, 1.3: its summation density pairs at h = 2 dx
 # on the stretching drop (0.13 dx, a void), and its wave runs at 1.3 (docs/isph.md).
 DEFAULT_HDX = {"wcsph": 2.0, "isph": 1.3}
+# the kernels a scene may choose, with their support radius / h (sph/kernels.py builds them)
+KERNEL_SUPPORT = {"cubic_spline": 2.0, "wendland_c2": 2.0, "wendland_c4": 2.0, "quintic_spline": 3.0, "gaussian": 3.0,
+                  "poly6_spiky": 2.0}
 
 
 def opt(default: Any = dataclasses.MISSING, doc: str = "", *, unit: str = "", choices: tuple | None = None,
@@ -44,8 +47,7 @@ class Particles:
     dx: float = opt(0.02, "initial particle spacing", unit="m", positive=True)
     hdx: float | None = opt(None, "smoothing length over spacing, h = hdx * dx; None = the solver's default "
                                   "(DEFAULT_HDX: 2.0 for WCSPH, 1.3 for ISPH)", positive=True)
-    kernel: str = opt("wendland_c2", "smoothing kernel", choices=("cubic_spline", "wendland_c2", "wendland_c4",
-                                                                  "quintic_spline", "gaussian", "poly6_spiky"))
+    kernel: str = opt("wendland_c2", "smoothing kernel", choices=tuple(KERNEL_SUPPORT))
     max_neighbors: int | str = opt(AUTO, "capacity of each particle's neighbour list ('auto': 2.5x the lattice count)")
     skin: float | str = opt(AUTO, "Verlet skin as a fraction of the support radius: lists cover support x (1 + skin) and "
                                   "are rebuilt only when a particle may have moved skin/2; 'auto' = 0.15 for WCSPH, "
@@ -86,7 +88,9 @@ class Body:
     hi: tuple[float, ...] | None = opt(None, "box upper corner (inner upper corner of wall_box)", unit="m")
     center: tuple[float, ...] | None = opt(None, "fluid_sphere centre (a circle in 2D, a segment in 1D)", unit="m")
     radius: float | None = opt(None, "fluid_sphere radius", unit="m", positive=True)
-    layers: int = opt(3, "wall_box: number of particle layers outside the inner box", minimum=1)
+    layers: int | None = opt(None, "wall_box: number of particle layers outside the inner box; None = as many as the kernel "
+                                   "support spans, ceil(support / dx) (4 for WCSPH's default h = 2 dx, 3 for ISPH's 1.3 dx)",
+                              minimum=1)
     open_top: bool = opt(True, "wall_box: no wall on the top face (highest axis)")
     velocity: tuple[Any, ...] | None = opt(None, "initial velocity (fluid) or prescribed velocity (wall): dim numbers, or dim "
                                            "expressions of x, y, z, t-free (numpy functions sin, cos, exp, sqrt, pi, ...)", unit="m/s")
@@ -442,6 +446,13 @@ class Config:
     def h(self) -> float:
         """Smoothing length h = hdx * dx."""
         return self.hdx * self.particles.dx
+
+    def wall_layers(self, body: Body) -> int:
+        """A wall_box's particle layers: its `layers`, or (None) as many as this run's kernel support spans, so that
+        a fluid particle at the wall has a full support."""
+        if body.layers is not None:
+            return body.layers
+        return int(math.ceil(KERNEL_SUPPORT[self.particles.kernel] * self.h / self.particles.dx - 1e-9))
 
     def _isph_override(self, name: str) -> bool:
         """Whether this run takes `isph.<name>` (an ISPH run with it set) rather than the shared key."""

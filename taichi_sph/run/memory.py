@@ -83,13 +83,14 @@ def _sphere_count(dim: int, radius: float, dx: float) -> int:
     return int(np.sum(np.where(rest >= 0.0, 2 * np.minimum(half, n), 0)))
 
 
-def body_points(body: Body, dx: float) -> tuple[int, int]:
-    """(points the body contributes, points of the largest lattice built for it)."""
+def body_points(body: Body, dx: float, layers: int = 0) -> tuple[int, int]:
+    """(points the body contributes, points of the largest lattice built for it); `layers`: a wall_box's
+    particle layers (Config.wall_layers)."""
     if body.type == "fluid_sphere":
         count = _sphere_count(len(body.center), body.radius, dx)
         return count, (2 * int(math.ceil(body.radius / dx)) + 1) ** len(body.center)
     if body.type == "wall_box":
-        thick = body.layers * dx
+        thick = layers * dx
         lo_ext = [body.lo[a] - thick for a in range(len(body.lo))]
         hi_ext = [body.hi[a] + thick for a in range(len(body.lo))]
         if body.open_top:
@@ -108,7 +109,7 @@ def particle_counts(cfg: Config) -> tuple[int, int, int]:
     dx = cfg.particles.dx
     fluid = wall = largest = 0
     for body in cfg.bodies:
-        count, lattice = body_points(body, dx)
+        count, lattice = body_points(body, dx, cfg.wall_layers(body) if body.type == "wall_box" else 0)
         largest = max(largest, lattice)
         if body.type.startswith("fluid"):
             fluid += count

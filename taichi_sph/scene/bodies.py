@@ -42,10 +42,10 @@ class ParticleArrays:
         return int(np.count_nonzero(self.kind == WALL))
 
 
-def wall_box_points(body: Body, dx: float) -> np.ndarray:
+def wall_box_points(body: Body, dx: float, layers: int) -> np.ndarray:
     """`layers` layers of lattice points around the inner box [lo, hi] (top face left open if asked)."""
     dim = len(body.lo)
-    thick = body.layers * dx
+    thick = layers * dx
     lo_ext = [body.lo[a] - thick for a in range(dim)]
     hi_ext = [body.hi[a] + thick for a in range(dim)]
     if body.open_top:
@@ -101,7 +101,7 @@ def build_particles(cfg: Config) -> ParticleArrays:
         elif body.type == "fluid_sphere":
             pts = lattice_sphere(body.center, body.radius, dx)
         elif body.type == "wall_box":
-            pts = wall_box_points(body, dx)
+            pts = wall_box_points(body, dx, cfg.wall_layers(body))
         else:
             pts = lattice_box(body.lo, body.hi, dx)
         if len(pts) == 0:
@@ -187,7 +187,7 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
         lo, hi = np.asarray(body.lo, float), np.asarray(body.hi, float)
         y = x[unassigned]
         if body.type == "wall_box":
-            thick = body.layers * cfg.particles.dx + 1e-9
+            thick = cfg.wall_layers(body) * cfg.particles.dx + 1e-9
             top = hi + thick
             if body.open_top:
                 top[-1] = hi[-1] + 1e-9  # wall_box_points stop at hi along the open axis

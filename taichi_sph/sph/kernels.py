@@ -27,6 +27,7 @@ from typing import Any, Callable
 import numpy as np
 import taichi as ti
 
+from taichi_sph.config.schema import KERNEL_SUPPORT
 from taichi_sph.errors import ConfigError
 
 DIMS = (1, 2, 3)
@@ -246,14 +247,11 @@ def poly6_spiky(dim: int, h: float) -> SPHKernel:
     return _assemble("poly6_spiky", dim, h, w, dw_dr, w_spiky_formula=w_spiky)
 
 
-# Registry: name -> (family, support radius / h). Its keys are the allowed values in errors.
+# Registry: name -> (family, support radius / h from config's KERNEL_SUPPORT). Its keys are the allowed values in errors.
 _FAMILIES: dict[str, tuple[Callable[[int, float], SPHKernel], float]] = {
-    "cubic_spline": (cubic_spline, 2.0),
-    "wendland_c2": (wendland_c2, 2.0),
-    "wendland_c4": (wendland_c4, 2.0),
-    "quintic_spline": (quintic_spline, 3.0),
-    "gaussian": (gaussian, 3.0),
-    "poly6_spiky": (poly6_spiky, 2.0),
+    name: (family, KERNEL_SUPPORT[name]) for name, family in (
+        ("cubic_spline", cubic_spline), ("wendland_c2", wendland_c2), ("wendland_c4", wendland_c4),
+        ("quintic_spline", quintic_spline), ("gaussian", gaussian), ("poly6_spiky", poly6_spiky))
 }
 KERNEL_NAMES: tuple[str, ...] = tuple(_FAMILIES)
 
