@@ -126,7 +126,8 @@ class DensityDiffusion:
 
 @dataclass(frozen=True)
 class ArtificialViscosity:
-    alpha: float = opt(0.0, "Monaghan (1992) linear coefficient (used by ISPH's predictor too); 0 (with beta 0) "
+    alpha: float = opt(0.0, "Monaghan (1992) linear coefficient (used by ISPH's predictor too, on every pair: an "
+                            "incompressible flow's approaching pairs recede along another axis); 0 (with beta 0) "
                             "compiles it out", minimum=0.0)
     beta: float = opt(0.0, "Monaghan quadratic coefficient", minimum=0.0)
 

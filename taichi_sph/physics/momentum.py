@@ -100,6 +100,22 @@ def monaghan_viscosity(m_b: float, v_ab, r_ab, r2: float, h: float, c0: float, r
 
 
 @ti.func
+def monaghan_viscosity_every_pair(m_b: float, v_ab, r_ab, r2: float, h: float, c0: float, rho_mean: float, alpha: float,
+                                  beta: float, grad_w):
+    """Monaghan (1992)'s viscosity on every pair, approaching or receding: -m_b Pi_ab grad W with
+    Pi_ab = -(alpha c0 + beta |mu|) mu / rho_mean, mu = h v_ab.r_ab / (r^2 + 0.01 h^2) (for approaching pairs, mu < 0,
+    the usual (-alpha c0 mu + beta mu^2) / rho_mean): a viscosity nu ~ alpha c0 h / (2 (dim + 2)). The form for an
+    incompressible flow, where the pairs that approach along one axis recede along another: switched on for
+    approaching pairs only it pushes a particle away from the neighbours closing on it and never pulls it back
+    after, and at a free surface, whose particles have neighbours on one side only, that is a net outward push
+    (ISPH's standing wave with alpha 0.01: energy above rest 2.77 J after 9 steps against 2.04 J inviscid, the
+    fluid's volume growing; dam_break_buchner_2d: 5.8 J gained at the impact)."""
+    mu = h * v_ab.dot(r_ab) / (r2 + 0.01 * h * h)
+    pi_ab = -(alpha * c0 + beta * ti.abs(mu)) * mu / rho_mean
+    return -m_b * pi_ab * grad_w
+
+
+@ti.func
 def morris_laminar_viscosity(m_b: float, nu: float, rho_a: float, rho_b: float, v_ab, r_ab, r2: float, eta2: float,
                              grad_w):
     """Morris, Fox & Zhu (1997): m_b (mu_a + mu_b) / (rho_a rho_b) (r_ab . grad W) / (r^2 + eta^2) v_ab, mu = rho nu."""
