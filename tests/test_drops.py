@@ -115,8 +115,9 @@ def test_oscillating_drop_isph_through_the_first_minimum(tmp_path):
     within 1% and the half period within 1%. Measured -0.28% in session 21 (shape 0.76% to t = 1.2 s) with the
     free-surface Dirichlet value's acceleration as the neighbours' linear fit at the particle (their Shepard mean,
     the value ~1 dx inside the surface, gave -1.25%: docs/isph.md); -0.73% in session 24 before Monaghan's
-    viscosity acted on every pair in ISPH (the drift since session 21 not bisected), -0.86% after it (the scene's
-    alpha 0.02 now damps receding pairs too; the bound was 0.8%)."""
+    viscosity acted on every pair in ISPH (the drift since session 21 bisected to f75f762: a step cut to land on an
+    output removes only dt_cut / dt_rule of the divergence, docs/isph.md), -0.86% after it (the scene's alpha 0.02
+    now damps receding pairs too; the bound was 0.8%)."""
     cfg = load_config(bundled_configs_dir() / "oscillating_drop_2d.yaml", ["solver=isph", "time.t_end=0.9"])
     s = Simulation(cfg, tmp_path, render=False, quiet=True).run().summary
     assert s["status"] == "ok"
