@@ -366,16 +366,24 @@ def ellipse_drop_semi_axis(t, radius: float, strain_rate: float, omega: float = 
 
 
 def first_extrema_times(t, a) -> tuple[float, float]:
-    """Times of the first maximum and the first minimum after it of a sampled signal, each refined by a
-    parabola through the sample and its two neighbours (nan where there is none)."""
+    """Times of the first maximum and the first minimum after it of a sampled signal, each refined by the
+    vertex of the parabola through the sample and its two neighbours at their own times (nan where there is
+    none). A run's outputs are the first steps past each output time, so the samples are not evenly spaced;
+    the even-spacing vertex formula used until session 24 was off by up to a fraction of a step there (the
+    oscillating drop's ISPH half period read -0.28% for -0.85%)."""
     t = np.asarray(t, dtype=np.float64)
     a = np.asarray(a, dtype=np.float64)
 
     def vertex(i: int) -> float:
-        y0, y1, y2 = a[i - 1], a[i], a[i + 1]
-        den = y0 - 2.0 * y1 + y2
-        shift = 0.5 * (y0 - y2) / den if den != 0.0 else 0.0
-        return float(t[i] + shift * 0.5 * (t[i + 1] - t[i - 1]))
+        (t0, t1, t2), (y0, y1, y2) = t[i - 1:i + 2], a[i - 1:i + 2]
+        h0, h1 = t1 - t0, t2 - t1
+        d0, d1 = (y1 - y0) / h0, (y2 - y1) / h1  # the divided differences
+        curvature = (d1 - d0) / (h0 + h1)
+        if curvature == 0.0:
+            return float(t1)
+        # y = y1 + s (t - t1) + curvature (t - t1)^2 with s the parabola's slope at t1
+        slope = d0 + curvature * h0
+        return float(t1 - 0.5 * slope / curvature)
 
     t_max = t_min = math.nan
     for i in range(1, len(a) - 1):
