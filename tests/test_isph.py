@@ -519,7 +519,7 @@ def test_spray_on_a_wall_is_free_surface():
 
 def test_artificial_viscosity_does_not_expand_a_free_surface(tmp_path):
     """ISPH's predictor applies Monaghan's viscosity to every pair (physics/momentum.py
-    monaghan_viscosity_every_pair). Switched on for approaching pairs only (WCSPH's form) it rectified the standing
+    monaghan_viscosity, every_pair). Switched on for approaching pairs only (WCSPH's form) it rectified the standing
     wave's strain into an outward push on the surface particles, whose neighbours lie on one side: with alpha 0.01
     the energy above rest was 2.77 J at t = 0.13 s (9 steps) against 2.04 J without the viscosity (E0 1.96 J; the
     rest of the rise is the crest phase's reversible bump, docs/isph.md) and the run ended "unstable". On every pair

@@ -448,12 +448,15 @@ class Config:
         """Smoothing length h = hdx * dx."""
         return self.hdx * self.particles.dx
 
-    def wall_layers(self, body: Body) -> int:
-        """A wall_box's particle layers: its `layers`, or (None) as many as this run's kernel support spans, so that
-        a fluid particle at the wall has a full support."""
-        if body.layers is not None:
-            return body.layers
+    @property
+    def support_layers(self) -> int:
+        """Particle layers this run's kernel support spans: ceil(support radius / dx)."""
         return int(math.ceil(KERNEL_SUPPORT[self.particles.kernel] * self.h / self.particles.dx - 1e-9))
+
+    def wall_layers(self, body: Body) -> int:
+        """A wall_box's particle layers: its `layers`, or (None) `support_layers`, so that a fluid particle at the
+        wall has a full support."""
+        return body.layers if body.layers is not None else self.support_layers
 
     def _isph_override(self, name: str) -> bool:
         """Whether this run takes `isph.<name>` (an ISPH run with it set) rather than the shared key."""

@@ -168,11 +168,12 @@ def _walls(cfg: Config) -> list[CheckResult]:
     out: list[CheckResult] = []
     dx = cfg.particles.dx
     support = support_factor(cfg.particles.kernel) * cfg.h
-    need = int(math.ceil(support / dx - 1e-9))
+    need = cfg.support_layers
     for i, b in enumerate(cfg.bodies):
-        if b.type == "wall_box" and cfg.wall_layers(b) < need:
-            thin = cfg.wall_layers(b) * dx < 0.5 * support
-            out.append(CheckResult("wall_layers", f"bodies[{i}] has {cfg.wall_layers(b)} wall layers but the kernel support "
+        layers = cfg.wall_layers(b)
+        if b.type == "wall_box" and layers < need:
+            thin = layers * dx < 0.5 * support
+            out.append(CheckResult("wall_layers", f"bodies[{i}] has {layers} wall layers but the kernel support "
                                                   f"({support:.3g} m) spans {need}: particles near the wall lack "
                                                   f"neighbours" + (" and can pass through it" if thin else "")
                                                   + f"; set layers: {need}", severe=thin))

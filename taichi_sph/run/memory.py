@@ -83,7 +83,7 @@ def _sphere_count(dim: int, radius: float, dx: float) -> int:
     return int(np.sum(np.where(rest >= 0.0, 2 * np.minimum(half, n), 0)))
 
 
-def body_points(body: Body, dx: float, layers: int = 0) -> tuple[int, int]:
+def body_points(body: Body, dx: float, layers: int) -> tuple[int, int]:
     """(points the body contributes, points of the largest lattice built for it); `layers`: a wall_box's
     particle layers (Config.wall_layers)."""
     if body.type == "fluid_sphere":
@@ -109,7 +109,7 @@ def particle_counts(cfg: Config) -> tuple[int, int, int]:
     dx = cfg.particles.dx
     fluid = wall = largest = 0
     for body in cfg.bodies:
-        count, lattice = body_points(body, dx, cfg.wall_layers(body) if body.type == "wall_box" else 0)
+        count, lattice = body_points(body, dx, cfg.wall_layers(body))
         largest = max(largest, lattice)
         if body.type.startswith("fluid"):
             fluid += count

@@ -23,7 +23,7 @@ import taichi as ti
 from taichi_sph.config.schema import Config
 from taichi_sph.linalg.ppe import BB, DIRICHLET, N_UNKNOWN, SUM_B, UNKNOWN, MatrixFreePPE
 from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradient_pair_terms
-from taichi_sph.physics.momentum import monaghan_viscosity_every_pair, morris_laminar_viscosity, pressure_difference_pair_terms
+from taichi_sph.physics.momentum import monaghan_viscosity, morris_laminar_viscosity, pressure_difference_pair_terms
 from taichi_sph.physics.ppe_terms import (
     corrected_velocity_divergence,
     neumann_wall_pressure_difference,
@@ -151,8 +151,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 v_ab = sums.va - self.v_ghost[b]
         if ti.static(self.features.artificial_viscosity):
             # on every pair, not approaching ones only (WCSPH's form): see the function
-            sums.acc += monaghan_viscosity_every_pair(P.mass[b], v_ab, r_ab, r2, self.h, self.c0, self.rho0,
-                                                      self.alpha, self.beta_av, grad_w)
+            sums.acc += monaghan_viscosity(P.mass[b], v_ab, r_ab, r2, self.h, self.c0, self.rho0, self.alpha,
+                                           self.beta_av, grad_w, True)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
                 sums.acc += self.visc_norm * morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,

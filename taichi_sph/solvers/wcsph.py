@@ -235,7 +235,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                 v_visc = sums.va - self.v_ghost[b]
         if ti.static(self.features.artificial_viscosity):
             sums.acc += monaghan_viscosity(m_b, v_visc, r_ab, r2, self.h, self.c0, 0.5 * (sums.rho_a + rho_b),
-                                           self.alpha, self.beta, grad_w)
+                                           self.alpha, self.beta, grad_w, False)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
                 if ti.static(self.consistent_laplacian):
