@@ -14,11 +14,17 @@ the images of the fluid in its faces rather than as its wall particles, whose pa
 along the wall sits against the wall rows (`mirror_images`; docs/isph.md: on the standing wave that near-wall shift
 was ISPH's whole energy gain).
 
-With `shifting.velocity_correction` the shifted particle's velocity (and WCSPH's continuity density) is
-Taylor-corrected to its new position, v_a += <grad v>_a . dr_a with the renormalised gradient over fluid
-neighbours (physics/shifting.py taylor_correction); without it a particle keeps the velocity of the point it
-left (Taylor-Green, t = 0.5, WCSPH with the corrected pressure gradient: L1 0.0057 / 0.0026 at dx 0.02 / 0.01
-without, 0.0050 / 0.0017 with).
+With `shifting.velocity_correction` the shifted particle's velocity is Taylor-corrected to its new position,
+v_a += <grad v>_a . dr_a with the renormalised gradient over fluid neighbours (physics/shifting.py
+taylor_correction); without it a particle keeps the velocity of the point it left (Taylor-Green, t = 0.5, WCSPH
+with the corrected pressure gradient: L1 0.0057 / 0.0026 at dx 0.02 / 0.01 without, 0.0050 / 0.0017 with).
+
+WCSPH's continuity density follows the shift (`shifting.density: continuity`): drho_a = sum_b m_b (dr_a - dr_b) .
+grad_a W_ab, the continuity equation with the displacements for v dt. The energy E = sum m (v^2 / 2 - g . x + e(rho))
+then changes by sum_a m_a (p_a / rho_a^2) drho_a - sum_a m_a g . dr_a = -sum_a m_a a_a . dr_a (the pair sum
+rearranged as the symmetric pressure gradient): nothing at rest, whatever the shift. A density that stays
+(`fixed`) or is carried as a field (`taylor`) lets the shift change the volume the particles fill: under gravity
+that is potential energy (the standing wave: +9% of its energy a period, a mean level rise of ~1e-5 of the depth).
 
 The speed U (`shifting.model`; ISPH may set its own, `isph.shifting_model`):
 - `skillen` (Skillen et al. 2013): the particle's own |v_a|. It vanishes at a stagnation point. In a
@@ -40,6 +46,7 @@ The speed U (`shifting.model`; ISPH may set its own, `isph.shifting_model`):
 import numpy as np
 import taichi as ti
 
+from taichi_sph.physics.density import continuity_rate
 from taichi_sph.physics.shifting import (
     lind_concentration_gradient_term,
     mirror_image,
@@ -70,11 +77,15 @@ class ParticleShifting:
         self.w_dx = float(solver.kernel.w_np(np.array([cfg.particles.dx]))[0])
         self.shift = solver.particles.add_vector()
         self.mirror = cfg.shifting_walls == "mirror"
-        # shifting.velocity_correction: the Taylor update of v (and of WCSPH's continuity density) for the shift
+        # shifting.velocity_correction: the Taylor update of v for the shift; shifting.density: WCSPH's continuity
+        # density after it (taylor: the Taylor update, continuity: the displacements' continuity sum)
+        density = solver.features.shifting_density
         self.correct = solver.features.shifting_correction
-        self.correct_rho = self.correct and solver.name == "wcsph" and solver.features.density == "continuity"
+        self.correct_rho = density == "taylor"
+        self.follow_rho = density == "continuity"
+        self.taylor = self.correct or self.correct_rho  # the renormalised sums are needed
         self.dv = solver.particles.add_vector() if self.correct else None
-        self.drho = solver.particles.add_scalar() if self.correct_rho else None
+        self.drho = solver.particles.add_scalar() if self.correct_rho or self.follow_rho else None
         # surface flags of this step (the projection band is found from the neighbours' flags)
         self.surface = solver.particles.add_scalar(dtype=ti.i32)
         # sun: 1 in the free-surface region (a surface particle within the support, itself included), for
@@ -162,9 +173,10 @@ class ParticleShifting:
                     if length > self.max_shift:
                         dr *= self.max_shift / length
                     self.shift[a] = dr
-                    if ti.static(self.correct):
+                    if ti.static(self.taylor):
                         y = renormalised_displacement(sums.moment, dr)
-                        self.dv[a] = taylor_correction(sums.sum_dv, y)
+                        if ti.static(self.correct):
+                            self.dv[a] = taylor_correction(sums.sum_dv, y)
                         if ti.static(self.correct_rho):
                             self.drho[a] = sums.sum_drho.dot(y)
 
@@ -183,7 +195,7 @@ class ParticleShifting:
             sums.grad_c += lind_concentration_gradient_term(vol_b, w, self.w_dx, grad_w)
         if P.kind[b] == FLUID and r < S.support:
             sums.band = ti.max(sums.band, self.surface[b])
-        if ti.static(self.correct):
+        if ti.static(self.taylor):
             if P.kind[b] == FLUID:
                 sums.sum_dv += vol_b * (P.v[b] - sums.va).outer_product(grad_w)
                 sums.moment -= vol_b * r_ab.outer_product(grad_w)
@@ -267,19 +279,45 @@ class ParticleShifting:
                         state.grad_c += lind_concentration_gradient_term(vol_b, w, self.w_dx, grad_w)
 
     @ti.func
-    def move_pass(self, serial: ti.template()):
-        """x_a += shift_a (fluid); with the Taylor correction also v_a += dv_a (and rho_a += drho_a, p_a = EOS)."""
+    def density_follows_pass(self, serial: ti.template()):
+        """drho_a = sum_b m_b (dr_a - dr_b) . grad_a W_ab over fluid and wall neighbours (a wall's dr is 0), before
+        the particles move (`shifting.density: continuity`)."""
         S = self.solver
         P = S.particles
+        ti.loop_config(serialize=serial)
+        for a in range(S.n):
+            if S.live() and P.kind[a] == FLUID:
+                sums = ti.Struct(dr_a=self.shift[a], drho=0.0)
+                S.nsearch.for_each_neighbor(a, P.x, self.density_follows_pair, sums)
+                self.drho[a] = sums.drho
+
+    @ti.func
+    def density_follows_pair(self, a, b, r_ab, sums: ti.template()):
+        """drho += m_b (dr_a - dr_b) . grad_a W_ab: the continuity equation's pair with displacements for v dt."""
+        S = self.solver
+        P = S.particles
+        dr_b = ti.Vector.zero(float, S.dim)
+        if P.kind[b] == FLUID:
+            dr_b = self.shift[b]
+        sums.drho += continuity_rate(P.mass[b], sums.dr_a - dr_b, S.kernel.grad_w(r_ab, r_ab.norm()))
+
+    @ti.func
+    def move_pass(self, serial: ti.template()):
+        """x_a += shift_a (fluid); with the Taylor correction also v_a += dv_a; rho_a += drho_a, p_a = EOS where
+        WCSPH's continuity density follows the shift (its continuity sum or its Taylor update)."""
+        S = self.solver
+        P = S.particles
+        if ti.static(self.follow_rho):
+            self.density_follows_pass(serial)
         ti.loop_config(serialize=serial)
         for a in range(S.n):
             if S.live() and P.kind[a] == FLUID:
                 P.x[a] += self.shift[a]
                 if ti.static(self.correct):
                     P.v[a] += self.dv[a]
-                    if ti.static(self.correct_rho):
-                        P.rho[a] += self.drho[a]
-                        P.p[a] = S.tait(P.rho[a])
+                if ti.static(self.correct_rho or self.follow_rho):
+                    P.rho[a] += self.drho[a]
+                    P.p[a] = S.tait(P.rho[a])
 
     def apply(self, dt: float, max_speed: float = 0.0) -> None:
         """Shift fluid particles using the neighbour lists of this step (each by at most max_shift);

@@ -36,7 +36,8 @@ class Features:
     reflecting: bool
     shifting: bool
     shifting_model: str           # skillen | sun (solvers/shifting.py)
-    shifting_correction: bool     # Taylor correction of v (and continuity rho) after the shift
+    shifting_correction: bool     # Taylor correction of v after the shift
+    shifting_density: str         # continuity | taylor | fixed: WCSPH's continuity density after a shift; none otherwise
     clamp_negative_pressure: bool
 
     @classmethod
@@ -79,6 +80,8 @@ class Features:
             shifting=cfg.shifting_enabled,
             shifting_model=cfg.shifting_model,
             shifting_correction=cfg.shifting_enabled and cfg.shifting.velocity_correction,
+            shifting_density=(cfg.shifting_density if cfg.shifting_enabled and cfg.solver == "wcsph"
+                              and wc.density == "continuity" else "none"),
             clamp_negative_pressure=cfg.solver == "wcsph" and wc.clamp_negative_pressure,
         )
 
@@ -115,6 +118,8 @@ class Features:
             terms.append(f"particle_shifting:{self.shifting_model}")
             if self.shifting_correction:
                 terms.append("shifting_taylor_correction")
+            if self.shifting_density != "none":
+                terms.append(f"shifting_density:{self.shifting_density}")
         if self.clamp_negative_pressure:
             terms.append("clamp_negative_pressure")
         return terms
