@@ -46,7 +46,7 @@ The speed U (`shifting.model`; ISPH may set its own, `isph.shifting_model`):
 import numpy as np
 import taichi as ti
 
-from taichi_sph.physics.density import continuity_rate
+from taichi_sph.physics.density import continuity_rate, corrected_continuity_rate
 from taichi_sph.physics.shifting import (
     lind_concentration_gradient_term,
     mirror_image,
@@ -299,7 +299,12 @@ class ParticleShifting:
         dr_b = ti.Vector.zero(float, S.dim)
         if P.kind[b] == FLUID:
             dr_b = self.shift[b]
-        sums.drho += continuity_rate(P.mass[b], sums.dr_a - dr_b, S.kernel.grad_w(r_ab, r_ab.norm()))
+        grad_w = S.kernel.grad_w(r_ab, r_ab.norm())
+        if ti.static(getattr(S, "corrected_symmetric", False)):  # its continuity's corrected divergence
+            sums.drho += corrected_continuity_rate(P.rho[a], P.mass[b] / P.rho[b], sums.dr_a - dr_b,
+                                                   S.l_matrix[a] @ grad_w)
+        else:
+            sums.drho += continuity_rate(P.mass[b], sums.dr_a - dr_b, grad_w)
 
     @ti.func
     def move_pass(self, serial: ti.template()):
