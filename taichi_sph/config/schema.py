@@ -130,6 +130,17 @@ class ArtificialViscosity:
                             "incompressible flow's approaching pairs recede along another axis); 0 (with beta 0) "
                             "compiles it out", minimum=0.0)
     beta: float = opt(0.0, "Monaghan quadratic coefficient", minimum=0.0)
+    switch: str = opt(AUTO, "'morris_monaghan': each particle's alpha rises with its compression rate and decays "
+                            "back to alpha (Morris & Monaghan 1997): d alpha_a / dt = -(alpha_a - alpha) / tau + "
+                            "max(-div v_a, 0) (alpha_max - alpha_a), tau = h / (decay c0), pairs take the mean "
+                            "(physics/momentum.py morris_monaghan_alpha): dissipation at an impact that a wave does "
+                            "not get (a drop into a pool with the defaults: both solvers 'unstable' without it, ok "
+                            "with it; Buchner's WCSPH wall pressure RMS 0.47 -> 0.30; docs/wcsph.md). 'auto' = on "
+                            "under gravity (not along a periodic axis: a driven channel has no impact), off "
+                            "otherwise", choices=(AUTO, "none", "morris_monaghan"))
+    alpha_max: float = opt(0.05, "the switch's ceiling (ISPH's dam_break_buchner_2d with 0.1: 'unstable' in 1 of 3 "
+                                 "perturbed starts, with 0.05 ok in all)", minimum=0.0)
+    decay: float = opt(0.1, "the switch's decay rate in units of c0 / h", positive=True)
 
 
 @dataclass(frozen=True)
@@ -537,6 +548,17 @@ class Config:
         if self.particles.skin == AUTO:
             return 0.15 if self.solver == "wcsph" else 0.0
         return float(self.particles.skin)
+
+    @property
+    def viscosity_switch(self) -> bool:
+        """Morris & Monaghan's switch on a viscosity that can rise above zero."""
+        av = self.wcsph.artificial_viscosity
+        if av.alpha_max <= 0.0:
+            return False
+        if av.switch == AUTO:
+            along_periodic = any(g != 0.0 and self.periodic[a] for a, g in enumerate(self.gravity_vector))
+            return self.has_gravity and not along_periodic
+        return av.switch == "morris_monaghan"
 
     @property
     def artificial_viscosity(self) -> tuple[float, float]:

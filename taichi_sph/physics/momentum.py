@@ -115,6 +115,21 @@ def monaghan_viscosity(m_b: float, v_ab, r_ab, r2: float, h: float, c0: float, r
 
 
 @ti.func
+def compression_rate(m_b: float, v_ab, rho_a: float, grad_w) -> float:
+    """-div v_a += m_b v_ab . grad_a W_ab / rho_a (the continuity equation's rate over rho_a)."""
+    return m_b * v_ab.dot(grad_w) / rho_a
+
+
+@ti.func
+def morris_monaghan_alpha(alpha: float, compression: float, dt: float, tau: float, alpha_min: float,
+                          alpha_max: float) -> float:
+    """Morris & Monaghan (1997)'s switch: d alpha / dt = -(alpha - alpha_min) / tau + max(-div v, 0) (alpha_max - alpha),
+    one backward-Euler step (in [alpha_min, alpha_max] at any dt)."""
+    s = ti.max(compression, 0.0)
+    return (alpha + dt * (alpha_min / tau + s * alpha_max)) / (1.0 + dt * (1.0 / tau + s))
+
+
+@ti.func
 def morris_laminar_viscosity(m_b: float, nu: float, rho_a: float, rho_b: float, v_ab, r_ab, r2: float, eta2: float,
                              grad_w):
     """Morris, Fox & Zhu (1997): m_b (mu_a + mu_b) / (rho_a rho_b) (r_ab . grad W) / (r^2 + eta^2) v_ab, mu = rho nu."""

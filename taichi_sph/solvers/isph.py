@@ -23,7 +23,13 @@ import taichi as ti
 from taichi_sph.config.schema import Config
 from taichi_sph.linalg.ppe import BB, DIRICHLET, N_UNKNOWN, SUM_B, UNKNOWN, MatrixFreePPE
 from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradient_pair_terms
-from taichi_sph.physics.momentum import monaghan_viscosity, morris_laminar_viscosity, pressure_difference_pair_terms
+from taichi_sph.physics.momentum import (
+    compression_rate,
+    monaghan_viscosity,
+    morris_laminar_viscosity,
+    morris_monaghan_alpha,
+    pressure_difference_pair_terms,
+)
 from taichi_sph.physics.ppe_terms import (
     corrected_velocity_divergence,
     neumann_wall_pressure_difference,
@@ -80,6 +86,13 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         walls = arrays.kind != FLUID
         self.wall_speed = float(np.linalg.norm(arrays.v[walls], axis=1).max()) if walls.any() else 0.0
         self.alpha, self.beta_av = cfg.artificial_viscosity  # isph.artificial_viscosity_alpha or WCSPH's
+        # artificial_viscosity.switch: each particle's alpha (walls keep the floor) and the predictor's compression rate
+        av = cfg.wcsph.artificial_viscosity
+        self.alpha_max, self.switch_tau = av.alpha_max, self.h / (av.decay * self.c0)
+        self.av_alpha = P.add_scalar(persistent=True) if self.features.viscosity_switch else None
+        self.compression = P.add_scalar() if self.features.viscosity_switch else None
+        if self.features.viscosity_switch:
+            self.av_alpha.fill(self.alpha)
         self.wall_mass = self.rho0 * self.lattice_volume
         # kinematic wall condition: each wall particle knows the face it lies behind (permuted with it)
         self.init_kinematic_walls(arrays, ic.wall_clearance)
@@ -127,9 +140,13 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
                 xa = P.x[a]
-                sums = ti.Struct(va=P.v[a], acc=self.body_force(xa))
+                sums = ti.Struct(va=P.v[a], acc=self.body_force(xa), alpha_a=self.alpha, compression=0.0)
+                if ti.static(self.features.viscosity_switch):
+                    sums.alpha_a = self.av_alpha[a]
                 if ti.static(self.features.laminar_viscosity or self.features.artificial_viscosity):
                     self.nsearch.for_each_neighbor(a, P.x, self.viscosity_pair, sums)
+                if ti.static(self.features.viscosity_switch):
+                    self.compression[a] = sums.compression
                 acc = sums.acc
                 P.acc[a] = acc
                 if ti.static(self.explicit_step_force):
@@ -137,6 +154,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
                 P.v[a] += dt * P.acc[a]
+                if ti.static(self.features.viscosity_switch):
+                    self.av_alpha[a] = morris_monaghan_alpha(self.av_alpha[a], self.compression[a], dt,
+                                                             self.switch_tau, self.alpha, self.alpha_max)
 
     @ti.func
     def viscosity_pair(self, a, b, r_ab, sums: ti.template()):
@@ -151,7 +171,11 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 v_ab = sums.va - self.v_ghost[b]
         if ti.static(self.features.artificial_viscosity):
             # on every pair, not approaching ones only (WCSPH's form): see the function
-            sums.acc += monaghan_viscosity(P.mass[b], v_ab, r_ab, r2, self.h, self.c0, self.rho0, self.alpha,
+            alpha = self.alpha
+            if ti.static(self.features.viscosity_switch):
+                alpha = 0.5 * (sums.alpha_a + self.av_alpha[b])
+                sums.compression += compression_rate(P.mass[b], v_ab, self.rho0, grad_w)
+            sums.acc += monaghan_viscosity(P.mass[b], v_ab, r_ab, r2, self.h, self.c0, self.rho0, alpha,
                                            self.beta_av, grad_w, True)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:

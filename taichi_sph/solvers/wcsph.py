@@ -23,6 +23,7 @@ from taichi_sph.physics.density import (
     renormalised_gradient,
 )
 from taichi_sph.physics.momentum import (
+    compression_rate,
     consistent_velocity_difference,
     corrected_pressure_gradient,
     corrected_symmetric_pressure_gradient,
@@ -32,6 +33,7 @@ from taichi_sph.physics.momentum import (
     monaghan_tensile_correction,
     monaghan_viscosity,
     morris_laminar_viscosity,
+    morris_monaghan_alpha,
     pressure_difference_pair_terms,
     renormalised_laplacian,
     symmetric_pressure_gradient,
@@ -63,6 +65,14 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         self.corrected_symmetric = f.pressure_gradient == "corrected_symmetric"
         self.l_matrix = ti.Matrix.field(self.dim, self.dim, float, P.n) if self.corrected_symmetric else None
         self.alpha, self.beta = cfg.artificial_viscosity
+        # artificial_viscosity.switch: each particle's alpha (walls keep the floor) and its compression rate, set by
+        # the force pass and read by the next drift (same order)
+        av = cfg.wcsph.artificial_viscosity
+        self.alpha_max, self.switch_tau = av.alpha_max, self.h / (av.decay * self.c0)
+        self.av_alpha = P.add_scalar(persistent=True) if f.viscosity_switch else None
+        self.compression = P.add_scalar() if f.viscosity_switch else None
+        if f.viscosity_switch:
+            self.av_alpha.fill(self.alpha)
         self.delta_h_c0 = cfg.wcsph.density_diffusion.delta * self.h * self.c0
         tc = cfg.wcsph.tensile_correction
         self.tc_epsilon, self.tc_epsilon_positive, self.tc_n = tc.epsilon, tc.epsilon_positive, tc.n
@@ -189,9 +199,13 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                                      near_wall=0, acc_tension=ti.Vector.zero(float, self.dim),
                                      acc_pressure=ti.Vector.zero(float, self.dim), q_a=q_a,
                                      sum_dp=ti.Vector.zero(float, self.dim), visc=ti.Vector.zero(float, self.dim),
-                                     lap_m=0.0,
+                                     lap_m=0.0, alpha_a=self.alpha, compression=0.0,
                                      moment=ti.Matrix.zero(float, self.dim, self.dim))
+                    if ti.static(self.features.viscosity_switch):
+                        sums.alpha_a = self.av_alpha[a]
                     self.nsearch.for_each_neighbor(a, P.x, self.force_pair, sums)
+                    if ti.static(self.features.viscosity_switch):
+                        self.compression[a] = sums.compression
                     acc = sums.acc
                     if ti.static(self.renormalised_laplacian):
                         acc += renormalised_laplacian(sums.visc, sums.lap_m, self.lap_moment)
@@ -234,8 +248,12 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
             if not is_fluid_b:
                 v_visc = sums.va - self.v_ghost[b]
         if ti.static(self.features.artificial_viscosity):
+            alpha = self.alpha
+            if ti.static(self.features.viscosity_switch):
+                alpha = 0.5 * (sums.alpha_a + self.av_alpha[b])
+                sums.compression += compression_rate(m_b, v_ab, sums.rho_a, grad_w)
             sums.acc += monaghan_viscosity(m_b, v_visc, r_ab, r2, self.h, self.c0, 0.5 * (sums.rho_a + rho_b),
-                                           self.alpha, self.beta, grad_w, False)
+                                           alpha, self.beta, grad_w, False)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
                 if ti.static(self.consistent_laplacian):
@@ -359,6 +377,9 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                         P.v[a] += dt_kick * P.acc[a]
                         self.wall_guard(a, dt)
                     P.x[a] += dt * P.v[a]
+                    if ti.static(self.features.viscosity_switch):
+                        self.av_alpha[a] = morris_monaghan_alpha(self.av_alpha[a], self.compression[a], dt,
+                                                                 self.switch_tau, self.alpha, self.alpha_max)
                     if ti.static(self.features.density == "continuity"):
                         rate = self.drho[a]
                         if ti.static(self.features.density_diffusion != "none"):

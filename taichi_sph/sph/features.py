@@ -25,6 +25,7 @@ class Features:
     laminar_viscosity: bool
     laplacian: str                # morris | normalised | renormalised | consistent (the laminar viscosity's)
     artificial_viscosity: bool
+    viscosity_switch: bool        # Morris & Monaghan's per-particle alpha
     density: str                  # continuity | summation (WCSPH); ISPH always uses summation for its source
     density_diffusion: str        # none | molteni | fourtakas | antuono
     tensile_correction: bool
@@ -67,7 +68,8 @@ class Features:
             # ISPH takes 'normalised' for WCSPH's per-particle forms (solvers/base.py)
             laplacian=("normalised" if cfg.solver == "isph" and cfg.fluid.laplacian in ("renormalised", "consistent")
                        else cfg.fluid.laplacian),
-            artificial_viscosity=(alpha > 0.0 or beta > 0.0),
+            artificial_viscosity=(alpha > 0.0 or beta > 0.0 or cfg.viscosity_switch),
+            viscosity_switch=cfg.viscosity_switch,
             density=wc.density if cfg.solver == "wcsph" else "summation",
             density_diffusion=diffusion,
             tensile_correction=cfg.solver == "wcsph" and wc.tensile_correction.enabled,
@@ -101,7 +103,7 @@ class Features:
             if self.surface_scaled_pressure:
                 terms.append("kernel_sum_scaled_pressure")
         if self.artificial_viscosity:
-            terms.append("monaghan_artificial_viscosity")
+            terms.append("monaghan_artificial_viscosity" + (":morris_monaghan_switch" if self.viscosity_switch else ""))
         if self.laminar_viscosity:
             terms.append("morris_laminar_viscosity" + ("" if self.laplacian == "morris" else f":{self.laplacian}"))
         if self.gravity:
