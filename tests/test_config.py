@@ -314,7 +314,7 @@ def test_isph_artificial_viscosity_alpha_overrides_only_isph(tmp_path):
     isph = load_config(base, ["solver=isph", "wcsph.artificial_viscosity.alpha=0.0", "isph.artificial_viscosity_alpha=0.03"])
     assert isph.artificial_viscosity[0] == 0.03 and Features.from_config(isph, 0).artificial_viscosity
     inherit = load_config(base, ["solver=isph", "wcsph.artificial_viscosity.alpha=0.05"])
-    assert inherit.artificial_viscosity[0] == 0.05  # None: ISPH uses the WCSPH value
+    assert inherit.artificial_viscosity[0] == 0.025  # None: half the WCSPH value (ISPH's acts on every pair)
 
 
 def test_periodic_gravity_and_shifting_defaults(tmp_path):

@@ -147,7 +147,7 @@ def test_markdown_and_map_from_synthetic_result(tmp_path):
 
 # ----------------------------------------------------------------------------- a real unstable run
 def test_five_times_the_cfl_limit_is_classified_unstable(tmp_path):
-    """A tiny undamped drop (no artificial viscosity, no density diffusion; guard raised to 0.3 since
+    """A tiny undamped drop (no artificial viscosity nor its switch, no density diffusion; guard raised to 0.3 since
     its impact alone reaches ~0.23): stable at the adaptive step, refused a priori at a fixed dt 5x
     the CFL limit, and when run anyway it blows up. Without the kinematic wall condition: with it, the
     condition holds at the floor the particles whose escape made this run unstable, and it ends "stable"
@@ -155,7 +155,8 @@ def test_five_times_the_cfl_limit_is_classified_unstable(tmp_path):
     its energy above rest (measured: 221 J -> 271 J at t = 0.26 s), which the guard calls unstable; this test is
     about the step."""
     overrides = ("particles.dx=0.04", "domain.lo=[-0.2, -0.2]", "domain.hi=[0.8, 1.2]", "time.t_end=0.3",
-                 "wcsph.artificial_viscosity.alpha=0", "wcsph.density_diffusion.model=none",
+                 "wcsph.artificial_viscosity.alpha=0", "wcsph.artificial_viscosity.switch=none",
+                 "wcsph.density_diffusion.model=none",
                  "guards.max_density_error=0.3", "wcsph.wall_clearance=null", "guards.energy_growth=null")
     adaptive = st.run_one(st.case_config(st.Case("tiny_1x", "drop.yaml", overrides), "wcsph"), tmp_path / "1x")
     assert adaptive["verdict"] == "stable", adaptive
@@ -175,7 +176,8 @@ def test_battery_on_a_process_pool_assembles_rows_from_the_case_folders(tmp_path
     from taichi_sph.studies.executor import Dispatch
 
     overrides = ("particles.dx=0.04", "domain.lo=[-0.2, -0.2]", "domain.hi=[0.8, 1.2]", "time.t_end=0.3",
-                 "wcsph.artificial_viscosity.alpha=0", "wcsph.density_diffusion.model=none",
+                 "wcsph.artificial_viscosity.alpha=0", "wcsph.artificial_viscosity.switch=none",
+                 "wcsph.density_diffusion.model=none",
                  "guards.max_density_error=0.3", "wcsph.wall_clearance=null",
                  "guards.energy_growth=null")  # the undamped impact gains 22% of its energy (test above)
     cases = (st.Case("tiny_1x", "drop.yaml", overrides),

@@ -13,6 +13,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 AUTO = "auto"
+# ISPH's Monaghan viscosity acts on every pair, WCSPH's on approaching pairs: the shared alpha halved gives ISPH
+# the same shear viscosity (Config.artificial_viscosity)
+ISPH_SHARED_ALPHA_FACTOR = 0.5
 
 # h / dx when a scene does not set particles.hdx. WCSPH, 2.0 (~50 neighbours in 2D): at 1.3 (~21) a standing wave
 # with no diffusion and no shifting turned its lattice into noise within half a period (kinetic energy 2 -> 5 J,
@@ -126,9 +129,11 @@ class DensityDiffusion:
 
 @dataclass(frozen=True)
 class ArtificialViscosity:
-    alpha: float = opt(0.0, "Monaghan (1992) linear coefficient (used by ISPH's predictor too, on every pair: an "
-                            "incompressible flow's approaching pairs recede along another axis); 0 (with beta 0) "
-                            "compiles it out", minimum=0.0)
+    alpha: float = opt(0.0, "Monaghan (1992) linear coefficient. WCSPH applies it to approaching pairs, ISPH's predictor "
+                            "to every pair (an incompressible flow's approaching pairs recede along another axis) with "
+                            "half this alpha (isph.artificial_viscosity_alpha unset): the same shear viscosity, as the "
+                            "switched form's stress comes from half the pairs; 0 (with beta 0 and no switch) compiles "
+                            "it out", minimum=0.0)
     beta: float = opt(0.0, "Monaghan quadratic coefficient", minimum=0.0)
     switch: str = opt(AUTO, "'morris_monaghan': each particle's alpha rises with its compression rate and decays "
                             "back to alpha (Morris & Monaghan 1997): d alpha_a / dt = -(alpha_a - alpha) / tau + "
@@ -323,8 +328,11 @@ class ISPH:
                                    "a shorter step, a larger correction, a shorter step)", choices=("total", "explicit"))
     compression_only: bool = opt(False, "density-invariance source corrects compression only (rho floored at rho0): for free-surface "
                                         "flows, where a kernel-sum deficit is not expansion; off in closed boxes (one-sided source drifts)")
-    artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor; None = wcsph.artificial_viscosity.alpha "
-                                                         "(ISPH steps ~10x longer, so the same alpha damps differently)", minimum=0.0)
+    artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor (on every pair; the floor of the "
+                                                         "switch); None = half of wcsph.artificial_viscosity.alpha, which "
+                                                         "WCSPH applies to approaching pairs only (dam_break_2d front RMS raw "
+                                                         "/ shifted 0.2088 / 0.0480 with the whole alpha, 0.2436 / 0.0419 "
+                                                         "with half; docs/isph.md)", minimum=0.0)
     cfl: float | None = opt(None, "Courant number of ISPH's adaptive step; None = time.cfl. ISPH's step follows the flow "
                                   "speed, WCSPH's the sound speed, so the same number means steps ~10x apart", positive=True)
     hdx: float | None = opt(None, "h / dx for ISPH; None = particles.hdx, or 1.3 when that is unset. ISPH's summation density (its density-invariance "
@@ -564,7 +572,8 @@ class Config:
     def artificial_viscosity(self) -> tuple[float, float]:
         """(alpha, beta) of the Monaghan viscosity for this run's solver."""
         av = self.wcsph.artificial_viscosity
-        return self.for_solver("artificial_viscosity_alpha", av.alpha), av.beta
+        shared = ISPH_SHARED_ALPHA_FACTOR * av.alpha if self.solver == "isph" else av.alpha
+        return self.for_solver("artificial_viscosity_alpha", shared), av.beta
 
     @property
     def shifting_model(self) -> str:
