@@ -60,7 +60,8 @@ def test_a_users_drop_into_a_pool_ends_ok_with_the_defaults(solver, t_end, tmp_p
 
 
 def test_the_switch_is_on_under_gravity_and_off_without_it():
-    """'auto': on under gravity, off without a body force and with gravity along a periodic axis (a driven channel)."""
+    """'auto': on under gravity, off without a body force, with gravity along a periodic axis (a driven channel) and
+    where the ceiling is not above the run's alpha."""
     from taichi_sph.config.loader import bundled_configs_dir
     on = {name: load_config(bundled_configs_dir() / f"{name}.yaml").viscosity_switch
           for name in ("dam_break_2d", "standing_wave_2d", "elliptical_drop_2d", "poiseuille_2d", "cavity_2d")}
@@ -68,3 +69,6 @@ def test_the_switch_is_on_under_gravity_and_off_without_it():
                   "poiseuille_2d": False, "cavity_2d": False}
     off = load_config(bundled_configs_dir() / "dam_break_2d.yaml", ["wcsph.artificial_viscosity.switch=none"])
     assert not off.viscosity_switch
+    # a ceiling at or below the floor would lower alpha under compression: off (column_1d sets alpha 0.1)
+    assert not load_config(bundled_configs_dir() / "column_1d.yaml").viscosity_switch
+    assert load_config(bundled_configs_dir() / "column_1d.yaml", ["wcsph.artificial_viscosity.alpha_max=0.2"]).viscosity_switch

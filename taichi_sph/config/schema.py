@@ -144,7 +144,8 @@ class ArtificialViscosity:
                             "under gravity (not along a periodic axis: a driven channel has no impact), off "
                             "otherwise", choices=(AUTO, "none", "morris_monaghan"))
     alpha_max: float = opt(0.05, "the switch's ceiling (ISPH's dam_break_buchner_2d with 0.1: 'unstable' in 1 of 3 "
-                                 "perturbed starts, with 0.05 ok in all)", minimum=0.0)
+                                 "perturbed starts, with 0.05 ok in all); at or below the run's alpha the switch is off",
+                           minimum=0.0)
     decay: float = opt(0.1, "the switch's decay rate in units of c0 / h", positive=True)
 
 
@@ -559,9 +560,9 @@ class Config:
 
     @property
     def viscosity_switch(self) -> bool:
-        """Morris & Monaghan's switch on a viscosity that can rise above zero."""
+        """Morris & Monaghan's switch, where its ceiling lies above this run's alpha (the floor it decays to)."""
         av = self.wcsph.artificial_viscosity
-        if av.alpha_max <= 0.0:
+        if av.alpha_max <= self.artificial_viscosity[0]:
             return False
         if av.switch == AUTO:
             along_periodic = any(g != 0.0 and self.periodic[a] for a, g in enumerate(self.gravity_vector))
