@@ -180,19 +180,18 @@ class Shifting:
     velocity_correction: bool = opt(False, "Taylor correction after the shift: v_a += (grad v)_a . dr_a, with the renormalised "
                                            "gradient (physics/shifting.py taylor_correction; Xu, Stansby & Laurence 2009, Lind "
                                            "et al. 2012). Without it a shifted particle keeps the velocity of the point it left")
-    density: str = opt(AUTO, "what WCSPH's continuity density does when a particle is shifted: 'continuity' "
-                                     "drho_a = sum_b m_b (dr_a - dr_b) . grad_a W_ab, the continuity equation with the "
-                                     "shift's displacements for v dt (walls do not shift), so the volumes m / rho follow the "
-                                     "arrangement and a shift changes the energy by -sum m_a a_a . dr_a, nothing at rest "
-                                     "(physics/density.py continuity_rate); 'taylor' rho_a += (grad rho)_a . dr_a (the "
-                                     "field carried to the new position; its volumes do not follow); 'fixed' keeps it. "
-                                     "With 'fixed' or 'taylor' the shift lifts a free surface: a standing wave gains "
-                                     "~9% of its energy a period, 'continuity' ~0.4% (docs/wcsph.md). 'auto' = continuity "
-                                     "under gravity (there a volume change is potential energy), fixed otherwise (walls or "
-                                     "periodic faces hold the volume, and with a strong shift, coefficient 20, the "
-                                     "following density turns each shift into a pressure pulse: cavity_2d unstable at "
-                                     "t = 1 s, taylor_green_2d L1 0.24 against 0.0043). ISPH and summation density: not "
-                                     "used", choices=(AUTO, "continuity", "taylor", "fixed"))
+    density: str = opt("fixed", "what WCSPH's continuity density does when a particle is shifted: 'continuity' "
+                                "drho_a = sum_b m_b (dr_a - dr_b) . grad_a W_ab, the continuity equation with the "
+                                "shift's displacements for v dt (walls do not shift), so the volumes m / rho follow the "
+                                "arrangement and a shift changes the energy by -sum m_a a_a . dr_a, nothing at rest "
+                                "(physics/density.py continuity_rate); 'taylor' rho_a += (grad rho)_a . dr_a (the "
+                                "field carried to the new position; its volumes do not follow); 'fixed' keeps it. "
+                                "With 'fixed' or 'taylor' the shift lifts a free surface: a standing wave gains ~9% of "
+                                "its energy a period, 'continuity' ~0.4%. But with 'continuity' a strong shift becomes "
+                                "a pressure pulse: dam_break_2d with shifting on (skillen A 4) 'unstable' at t = 0.51 s "
+                                "where the surface meets the wall, cavity_2d (A 20) at 1 s, taylor_green_2d L1 0.24 "
+                                "against 0.0043; so 'fixed' stays the default (docs/wcsph.md). ISPH and summation "
+                                "density: not used", choices=("continuity", "taylor", "fixed"))
 
 
 @dataclass(frozen=True)
@@ -581,13 +580,6 @@ class Config:
         """The particle shift's speed model for this run's solver (isph.shifting_model or shifting.model)."""
         own = self.isph.shifting_model
         return own if self.solver == "isph" and own != "shared" else self.shifting.model
-
-    @property
-    def shifting_density(self) -> str:
-        """What WCSPH's continuity density does after a shift (`shifting.density`; 'auto': continuity under gravity)."""
-        if self.shifting.density == AUTO:
-            return "continuity" if self.has_gravity else "fixed"
-        return self.shifting.density
 
     @property
     def shifting_coefficient(self) -> float:

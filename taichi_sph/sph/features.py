@@ -82,7 +82,7 @@ class Features:
             shifting=cfg.shifting_enabled,
             shifting_model=cfg.shifting_model,
             shifting_correction=cfg.shifting_enabled and cfg.shifting.velocity_correction,
-            shifting_density=(cfg.shifting_density if cfg.shifting_enabled and cfg.solver == "wcsph"
+            shifting_density=(cfg.shifting.density if cfg.shifting_enabled and cfg.solver == "wcsph"
                               and wc.density == "continuity" else "none"),
             clamp_negative_pressure=cfg.solver == "wcsph" and wc.clamp_negative_pressure,
         )
