@@ -11,7 +11,7 @@ import taichi as ti
 from taichi_sph.config.schema import AUTO, Config
 from taichi_sph.physics.body_force import harmonic_central_force
 from taichi_sph.physics.eos import tait_density, tait_pressure
-from taichi_sph.physics.momentum import renormalised_velocity_gradient
+from taichi_sph.physics.momentum import morris_monaghan_alpha, renormalised_velocity_gradient
 from taichi_sph.physics.walls import adami_wall_pressure, adami_wall_velocity
 from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays, tait_b
 from taichi_sph.scene.lattice import lattice_gradient_sum, lattice_kernel_sum, max_neighbors_for
@@ -106,6 +106,33 @@ class SolverBase(KinematicWalls, CheckpointState):
         self.clock = DeviceClock(wide=self.wide)
 
     # -- neighbours ---------------------------------------------------------------------
+    def init_viscosity_switch(self, cfg: Config, alpha: float) -> None:
+        """Morris & Monaghan's switch (`wcsph.artificial_viscosity.switch`): each particle's alpha, starting at and
+        decaying to the run's `alpha` (walls keep it), and its compression rate -div v, which the solver's viscous
+        pass sums (physics/momentum.py compression_rate) and `step_switch_alpha` reads."""
+        av = cfg.wcsph.artificial_viscosity
+        self.switch_floor, self.alpha_max, self.switch_tau = alpha, av.alpha_max, self.h / (av.decay * self.c0)
+        on = self.features.viscosity_switch
+        self.av_alpha = self.particles.add_scalar(persistent=True) if on else None
+        self.compression = self.particles.add_scalar() if on else None
+        if on:
+            self.av_alpha.fill(alpha)
+
+    @ti.func
+    def pair_alpha(self, alpha_a, b):
+        """The Monaghan alpha of pair (a, b): the run's, or (switch) the mean of the two particles'."""
+        alpha = self.switch_floor
+        if ti.static(self.features.viscosity_switch):
+            alpha = 0.5 * (alpha_a + self.av_alpha[b])
+        return alpha
+
+    @ti.func
+    def step_switch_alpha(self, a, dt):
+        """alpha_a after a step dt of the switch's equation at a's last compression rate (physics/momentum.py)."""
+        if ti.static(self.features.viscosity_switch):
+            self.av_alpha[a] = morris_monaghan_alpha(self.av_alpha[a], self.compression[a], dt, self.switch_tau,
+                                                     self.switch_floor, self.alpha_max)
+
     def rebuild_neighbors(self, serial: bool = False) -> None:
         """Cell sort, reorder every persistent field, rebuild neighbour lists (`serial`: on one thread)."""
         self.nsearch.build(self.particles.x, self.particles.persistent_fields, serial)

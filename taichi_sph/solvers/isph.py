@@ -27,7 +27,6 @@ from taichi_sph.physics.momentum import (
     compression_rate,
     monaghan_viscosity,
     morris_laminar_viscosity,
-    morris_monaghan_alpha,
     pressure_difference_pair_terms,
 )
 from taichi_sph.physics.ppe_terms import (
@@ -86,13 +85,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         walls = arrays.kind != FLUID
         self.wall_speed = float(np.linalg.norm(arrays.v[walls], axis=1).max()) if walls.any() else 0.0
         self.alpha, self.beta_av = cfg.artificial_viscosity  # isph.artificial_viscosity_alpha or WCSPH's
-        # artificial_viscosity.switch: each particle's alpha (walls keep the floor) and the predictor's compression rate
-        av = cfg.wcsph.artificial_viscosity
-        self.alpha_max, self.switch_tau = av.alpha_max, self.h / (av.decay * self.c0)
-        self.av_alpha = P.add_scalar(persistent=True) if self.features.viscosity_switch else None
-        self.compression = P.add_scalar() if self.features.viscosity_switch else None
-        if self.features.viscosity_switch:
-            self.av_alpha.fill(self.alpha)
+        self.init_viscosity_switch(cfg, self.alpha)  # the compression rate: the predictor's, before the projection
         self.wall_mass = self.rho0 * self.lattice_volume
         # kinematic wall condition: each wall particle knows the face it lies behind (permuted with it)
         self.init_kinematic_walls(arrays, ic.wall_clearance)
@@ -154,9 +147,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
                 P.v[a] += dt * P.acc[a]
-                if ti.static(self.features.viscosity_switch):
-                    self.av_alpha[a] = morris_monaghan_alpha(self.av_alpha[a], self.compression[a], dt,
-                                                             self.switch_tau, self.alpha, self.alpha_max)
+                self.step_switch_alpha(a, dt)
 
     @ti.func
     def viscosity_pair(self, a, b, r_ab, sums: ti.template()):
@@ -171,12 +162,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 v_ab = sums.va - self.v_ghost[b]
         if ti.static(self.features.artificial_viscosity):
             # on every pair, not approaching ones only (WCSPH's form): see the function
-            alpha = self.alpha
             if ti.static(self.features.viscosity_switch):
-                alpha = 0.5 * (sums.alpha_a + self.av_alpha[b])
                 sums.compression += compression_rate(P.mass[b], v_ab, self.rho0, grad_w)
-            sums.acc += monaghan_viscosity(P.mass[b], v_ab, r_ab, r2, self.h, self.c0, self.rho0, alpha,
-                                           self.beta_av, grad_w, True)
+            sums.acc += monaghan_viscosity(P.mass[b], v_ab, r_ab, r2, self.h, self.c0, self.rho0,
+                                           self.pair_alpha(sums.alpha_a, b), self.beta_av, grad_w, True)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
                 sums.acc += self.visc_norm * morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,

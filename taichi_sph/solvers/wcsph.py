@@ -33,7 +33,6 @@ from taichi_sph.physics.momentum import (
     monaghan_tensile_correction,
     monaghan_viscosity,
     morris_laminar_viscosity,
-    morris_monaghan_alpha,
     pressure_difference_pair_terms,
     renormalised_laplacian,
     symmetric_pressure_gradient,
@@ -65,14 +64,8 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         self.corrected_symmetric = f.pressure_gradient == "corrected_symmetric"
         self.l_matrix = ti.Matrix.field(self.dim, self.dim, float, P.n) if self.corrected_symmetric else None
         self.alpha, self.beta = cfg.artificial_viscosity
-        # artificial_viscosity.switch: each particle's alpha (walls keep the floor) and its compression rate, set by
-        # the force pass and read by the next drift (same order)
-        av = cfg.wcsph.artificial_viscosity
-        self.alpha_max, self.switch_tau = av.alpha_max, self.h / (av.decay * self.c0)
-        self.av_alpha = P.add_scalar(persistent=True) if f.viscosity_switch else None
-        self.compression = P.add_scalar() if f.viscosity_switch else None
-        if f.viscosity_switch:
-            self.av_alpha.fill(self.alpha)
+        # the switch's compression rate: set by the force pass, read by the next drift (same order)
+        self.init_viscosity_switch(cfg, self.alpha)
         self.delta_h_c0 = cfg.wcsph.density_diffusion.delta * self.h * self.c0
         tc = cfg.wcsph.tensile_correction
         self.tc_epsilon, self.tc_epsilon_positive, self.tc_n = tc.epsilon, tc.epsilon_positive, tc.n
@@ -248,12 +241,10 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
             if not is_fluid_b:
                 v_visc = sums.va - self.v_ghost[b]
         if ti.static(self.features.artificial_viscosity):
-            alpha = self.alpha
             if ti.static(self.features.viscosity_switch):
-                alpha = 0.5 * (sums.alpha_a + self.av_alpha[b])
                 sums.compression += compression_rate(m_b, v_ab, sums.rho_a, grad_w)
             sums.acc += monaghan_viscosity(m_b, v_visc, r_ab, r2, self.h, self.c0, 0.5 * (sums.rho_a + rho_b),
-                                           alpha, self.beta, grad_w, False)
+                                           self.pair_alpha(sums.alpha_a, b), self.beta, grad_w, False)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
                 if ti.static(self.consistent_laplacian):
@@ -377,9 +368,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                         P.v[a] += dt_kick * P.acc[a]
                         self.wall_guard(a, dt)
                     P.x[a] += dt * P.v[a]
-                    if ti.static(self.features.viscosity_switch):
-                        self.av_alpha[a] = morris_monaghan_alpha(self.av_alpha[a], self.compression[a], dt,
-                                                                 self.switch_tau, self.alpha, self.alpha_max)
+                    self.step_switch_alpha(a, dt)
                     if ti.static(self.features.density == "continuity"):
                         rate = self.drho[a]
                         if ti.static(self.features.density_diffusion != "none"):
