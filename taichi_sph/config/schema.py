@@ -139,8 +139,9 @@ class ArtificialViscosity:
                             "back to alpha (Morris & Monaghan 1997): d alpha_a / dt = -(alpha_a - alpha) / tau + "
                             "max(-div v_a, 0) (alpha_max - alpha_a), tau = h / (decay c0), pairs take the mean "
                             "(physics/momentum.py morris_monaghan_alpha): dissipation at an impact that a wave does "
-                            "not get (a drop into a pool with the defaults: both solvers 'unstable' without it, ok "
-                            "with it; Buchner's WCSPH wall pressure RMS 0.47 -> 0.30; docs/wcsph.md). 'auto' = on "
+                            "not get (a drop into a pool with the defaults: both solvers 'unstable' without it; with "
+                            "it WCSPH ok, ISPH ok to t = 0.6 s; Buchner's WCSPH wall pressure RMS 0.23-0.51 over three "
+                            "starts without it, 0.23-0.27 with; docs/wcsph.md). 'auto' = on "
                             "under gravity (not along a periodic axis: a driven channel has no impact), off "
                             "otherwise", choices=(AUTO, "none", "morris_monaghan"))
     alpha_max: float = opt(0.05, "the switch's ceiling (ISPH's dam_break_buchner_2d with 0.1: 'unstable' in 1 of 3 "
