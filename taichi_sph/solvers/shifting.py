@@ -46,7 +46,6 @@ The speed U (`shifting.model`; ISPH may set its own, `isph.shifting_model`):
 import numpy as np
 import taichi as ti
 
-from taichi_sph.physics.density import continuity_rate, corrected_continuity_rate
 from taichi_sph.physics.shifting import (
     lind_concentration_gradient_term,
     mirror_image,
@@ -293,18 +292,13 @@ class ParticleShifting:
 
     @ti.func
     def density_follows_pair(self, a, b, r_ab, sums: ti.template()):
-        """drho += m_b (dr_a - dr_b) . grad_a W_ab: the continuity equation's pair with displacements for v dt."""
+        """drho += the WCSPH continuity equation's pair with the displacements dr_a - dr_b for v_ab dt (its
+        continuity_pair_rate: the corrected divergence with `corrected_symmetric`)."""
         S = self.solver
-        P = S.particles
         dr_b = ti.Vector.zero(float, S.dim)
-        if P.kind[b] == FLUID:
+        if S.particles.kind[b] == FLUID:
             dr_b = self.shift[b]
-        grad_w = S.kernel.grad_w(r_ab, r_ab.norm())
-        if ti.static(getattr(S, "corrected_symmetric", False)):  # its continuity's corrected divergence
-            sums.drho += corrected_continuity_rate(P.rho[a], P.mass[b] / P.rho[b], sums.dr_a - dr_b,
-                                                   S.l_matrix[a] @ grad_w)
-        else:
-            sums.drho += continuity_rate(P.mass[b], sums.dr_a - dr_b, grad_w)
+        sums.drho += S.continuity_pair_rate(a, b, r_ab, sums.dr_a - dr_b)
 
     @ti.func
     def move_pass(self, serial: ti.template()):

@@ -323,14 +323,22 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
 
     @ti.func
     def continuity_pair(self, a, b, r_ab, sums: ti.template()):
-        """drho += m_b v_ab . grad_a W_ab, or (corrected_symmetric) rho_a V_b v_ab . L_a grad_a W_ab."""
+        """drho += the continuity pair of v_ab (continuity_pair_rate)."""
+        sums.drho += self.continuity_pair_rate(a, b, r_ab, sums.va - self.particles.v[b])
+
+    @ti.func
+    def continuity_pair_rate(self, a, b, r_ab, u_ab):
+        """m_b u_ab . grad_a W_ab, or (corrected_symmetric) rho_a V_b u_ab . L_a grad_a W_ab: pair (a, b)'s part of
+        the continuity equation's rate for the relative motion u_ab (a velocity; a particle shift's displacement
+        gives the density change the shift makes, solvers/shifting.py)."""
         P = self.particles
-        r = r_ab.norm()
+        grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
+        rate = 0.0
         if ti.static(self.corrected_symmetric):
-            sums.drho += corrected_continuity_rate(P.rho[a], P.mass[b] / P.rho[b], sums.va - P.v[b],
-                                                   self.l_matrix[a] @ self.kernel.grad_w(r_ab, r))
+            rate = corrected_continuity_rate(P.rho[a], P.mass[b] / P.rho[b], u_ab, self.l_matrix[a] @ grad_w)
         else:
-            sums.drho += continuity_rate(P.mass[b], sums.va - P.v[b], self.kernel.grad_w(r_ab, r))
+            rate = continuity_rate(P.mass[b], u_ab, grad_w)
+        return rate
 
     @ti.func
     def kick_pass(self, dt: float, dt_drift: float, guard: ti.template(), serial: ti.template()):
