@@ -216,3 +216,21 @@ def test_a_pick_the_model_got_wrong_is_measured_and_moved(tmp_path, monkeypatch)
     assert choice.pick.cand.dx >= best_true.dx - 1e-12  # never finer than the machine can run
     assert true_rtf[choice.pick.cand.n] >= cfg.realtime.margin or len(checks) == realtime_measure.MAX_CHECKS
     assert choice.pick.rtf == pytest.approx(true_rtf[choice.pick.cand.n]) or len(checks) == realtime_measure.MAX_CHECKS
+
+
+def test_a_coarser_spacing_grows_the_domain_to_hold_the_thicker_walls():
+    """At dx 0.125 the dam break's 4 wall layers reach 0.5 m past its tank, past the config's 0.2 m margin: the
+    candidate's domain grows so that no wall particle starts outside it (the config's own rule), the fluid and
+    the tank unchanged; at the config's dx nothing changes."""
+    from taichi_sph.config.validate import validate
+
+    cfg = load_config(ROOT / "configs/dam_break_2d.yaml")
+    coarse = at_dx(cfg, 0.125)
+    validate(coarse, "at_dx")
+    wall = next(b for b in cfg.bodies if b.type == "wall_box")
+    lo, hi = coarse.wall_box_extent(wall)
+    assert coarse.domain.lo == pytest.approx(lo) and coarse.domain.lo[0] < cfg.domain.lo[0]
+    assert coarse.domain.hi[0] == pytest.approx(hi[0]) and coarse.domain.hi[1] == cfg.domain.hi[1]  # open top
+    assert coarse.bodies == cfg.bodies
+    assert at_dx(cfg, cfg.particles.dx).domain == cfg.domain
+    assert realtime_measure.cache_key(coarse, "wcsph") == realtime_measure.cache_key(cfg, "wcsph"), "one entry a scene"

@@ -152,6 +152,37 @@ def test_view_2d_frames_match_offscreen(xvfb_display, tmp_path):
     _assert_same_picture(shown, offscreen, keep)
 
 
+def test_offscreen_view_needs_no_display(tmp_path):
+    """`view --offscreen --frames N` with no DISPLAY: the window's frames drawn into GGUI's offscreen image (a GPU
+    server's measurement), the same picture as the offscreen renderer's of the same state outside the panel; with
+    --realtime it writes the achieved RTF. Without --frames it is a usage error (nothing would close it)."""
+    out = tmp_path / "off"
+    cache = {"TAICHI_SPH_CACHE": str(tmp_path / "cache")}
+    os.environ.update(cache)
+    try:
+        done = _view([str(ROOT / "configs/dam_break_2d.yaml"), *SMALL_2D, "--offscreen", "--frames", "6", "--record",
+                      "--out", str(out), "--set", "render.video=none", "--realtime", "--solver", "wcsph", "--set",
+                      "realtime.min_particles_across=4"], None, tmp_path)
+        refused = _view([str(ROOT / "configs/dam_break_2d.yaml"), "--offscreen"], None, tmp_path, timeout=60)
+    finally:
+        os.environ.pop("TAICHI_SPH_CACHE")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "view: 6 frames" in done.stdout and "realtime: achieved RTF" in done.stdout
+    assert json.loads((out / "realtime.json").read_text())["frames_per_s"] > 0
+    frames = sorted((out / "frames").glob("frame_*.png"))
+    assert len(frames) == 6
+    shown = iio.imread(frames[-1])[..., :3]
+    state = dict(np.load(sorted((out / "snapshots").glob("*.npz"))[-1]))
+    assert state["step"] > 0
+    cfg = load_config(out / "config.yaml")
+    with FrameRenderer(RenderSettings.from_config(cfg.render), 2, cfg.domain.lo, cfg.domain.hi, len(state["x"]),
+                       cfg.particles.dx) as r:
+        offscreen = r.render(state["x"], state["kind"], particle_values(state["v"], state["rho"], state["p"]),
+                             float(state["t"]))
+    _assert_same_picture(shown, offscreen, _outside_panel(r.layout, panel_rect(r.layout)))
+    assert refused.returncode == 2 and "add --frames" in refused.stderr and "Traceback" not in refused.stderr
+
+
 def _assert_same_picture(shown: np.ndarray, offscreen: np.ndarray, keep: np.ndarray) -> None:
     """The window and the offscreen renderer draw the same picture. Both come from the same GGUI drawing
     calls and the same rasteriser (lavapipe), so geometry must agree exactly; the colour can differ only by

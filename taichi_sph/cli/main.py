@@ -68,6 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--record", action="store_true", help="write the shown frames, video and final state to a run folder")
     p.add_argument("--out", help="run folder for --record (default renders/<config name>-<solver>-view)")
     p.add_argument("--frames", type=int, help="close after this many frames (tests, measurements)")
+    p.add_argument("--offscreen", action="store_true",
+                   help="draw each frame into an offscreen image instead of a window: no display needed, no input "
+                        "(measurements on a headless machine; with --frames)")
     _add_common(p)
 
     p = sub.add_parser("check", help="validate a config and print the memory and disk estimates and the warnings")

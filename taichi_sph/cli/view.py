@@ -5,7 +5,8 @@ particles, render.overlay for the label and colour bar, drawn here as quads inst
 an image), so a window frame and an offscreen frame of the same state agree pixel for pixel outside
 the controls panel. The panel reads out the time, the rates and what a frame costs (view_pacing.py);
 keys and buttons pause, step, reset, recolour. Reset rewinds the solver in memory (rewind.SolverMemento).
-Without a display `view` fails with one line (view_display.py). With --realtime the spacing is chosen for
+Without a display `view` fails with one line (view_display.py); `--offscreen --frames N` draws the same frames into
+GGUI's offscreen image instead (headless measurements, e.g. on a GPU server). With --realtime the spacing is chosen for
 this machine (run/realtime_measure.py) and the frames step only up to the wall clock (view_pacing.WallClock).
 """
 
@@ -50,13 +51,16 @@ def panel_rect(layout) -> tuple[float, float, float, float]:
 class Viewer:
     """The live window of one scene. `frames`: stop after that many frames (tests, measurements);
     `record_dir`: write the shown frames, the video and the final state there, as `run` does; `realtime`:
-    the --realtime choice (run.realtime_measure.Choice): paced to the wall clock, its solver reused if measured."""
+    the --realtime choice (run.realtime_measure.Choice): paced to the wall clock, its solver reused if measured;
+    `offscreen`: the frames are drawn into GGUI's offscreen image and read back instead of shown (no display, no
+    input; a read-back costs more than presenting a window's frame, so the frame rate it reports is a floor)."""
 
     def __init__(self, cfg, *, frames: int | None = None, record_dir: Path | None = None, quiet: bool = False,
-                 config_arg: str = "CONFIG", realtime=None) -> None:
+                 config_arg: str = "CONFIG", realtime=None, offscreen: bool = False) -> None:
         from taichi_sph.render import RenderSettings
 
         self.cfg, self.frames, self.quiet, self.realtime = cfg, frames, quiet, realtime
+        self.offscreen = offscreen
         self.clock = WallClock()
         self.behind = False
         self.record_dir = Path(record_dir) if record_dir is not None else None
@@ -87,7 +91,7 @@ class Viewer:
     def _open(self):
         from taichi_sph.render import FrameLayout, scene
 
-        problem = display_problem()
+        problem = None if self.offscreen else display_problem()
         if problem is not None:
             raise no_display_error(problem, self.config_arg)
         if not scene.vulkan_available():
@@ -105,7 +109,8 @@ class Viewer:
             self.initial.restore()
         self.layout = FrameLayout.for_size(self.settings.width, self.settings.height)
         self.window = scene.open_window(f"taichi-sph view: {self.cfg.name} ({self.cfg.solver})",
-                                        self.layout.width, self.layout.height, show=True)
+                                        self.layout.width, self.layout.height,
+                                        show=not self.offscreen)
         cfg = self.cfg
         self.drawer = scene.ParticleDrawer(self.window, self.layout, self.settings, cfg.dim, cfg.domain.lo,
                                            cfg.domain.hi, self.solver.n, cfg.particles.dx)
@@ -238,6 +243,8 @@ class Viewer:
         import taichi as ti
 
         w = self.window
+        if self.offscreen:
+            return  # GGUI has no events without a window
         for e in w.get_events(ti.ui.PRESS):
             self.on_key(e.key)
         if self.cfg.dim != 3:
@@ -339,7 +346,10 @@ class Viewer:
             writer.write(path, image_from_buffer(self.window.get_image_buffer_as_numpy()))
             self.frames_written.append(path)
         self.record_s = time.perf_counter() - r0
-        self.window.show()
+        if not self.offscreen:
+            self.window.show()
+        elif writer is None:
+            self.window.get_image_buffer_as_numpy()  # GGUI draws an offscreen frame when it is read back
         self.draw_s = time.perf_counter() - d0 - self.record_s
         for costs, value in zip(self.costs, (self.step_s, self.draw_s, self.record_s)):
             costs.append(value)
@@ -385,7 +395,10 @@ def cmd_view(args) -> int:
         raise UsageError(f"--frames must be >= 1, got {args.frames}")
     if args.out and not args.record:
         raise UsageError("--out names the run folder of --record; add --record")
-    problem = display_problem()  # before anything slow: no display is a one-line answer at once
+    offscreen = getattr(args, "offscreen", False)
+    if offscreen and args.frames is None:
+        raise UsageError("--offscreen has no window to close: add --frames N")
+    problem = None if offscreen else display_problem()  # before anything slow: no display is a one-line answer
     if problem is not None:
         raise no_display_error(problem, args.config)
     choice = None
@@ -406,5 +419,5 @@ def cmd_view(args) -> int:
     if args.record:
         record = Path(args.out) if args.out else Path("renders") / f"{cfg.name}-{cfg.solver}-view"
     return Viewer(cfg, frames=args.frames, record_dir=record, quiet=args.quiet, config_arg=args.config,
-                  realtime=choice).run()
+                  realtime=choice, offscreen=offscreen).run()
 

@@ -490,6 +490,13 @@ class Config:
         wall has a full support."""
         return body.layers if body.layers is not None else self.support_layers
 
+    def wall_box_extent(self, body: Body) -> tuple[list[float], list[float]]:
+        """The outer corners of a wall_box's particle layers (its lo/hi grown by the layers; not above an open top)."""
+        d, thick = self.dim, self.wall_layers(body) * self.particles.dx
+        lo = [body.lo[a] - thick for a in range(d)]
+        hi = [body.hi[a] + (0.0 if (body.open_top and a == d - 1) else thick) for a in range(d)]
+        return lo, hi
+
     def _isph_override(self, name: str) -> bool:
         """Whether this run takes `isph.<name>` (an ISPH run with it set) rather than the shared key."""
         return self.solver == "isph" and getattr(self.isph, name) is not None

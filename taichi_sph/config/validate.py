@@ -55,9 +55,7 @@ def validate(cfg: Config, source: str) -> None:
             if isinstance(b.pressure, str):
                 _check_expression(b.pressure, d, f"{key}.pressure", source)
         if b.type == "wall_box":
-            thick = cfg.wall_layers(b) * cfg.particles.dx
-            outer_lo = [b.lo[a] - thick for a in range(d)]
-            outer_hi = [b.hi[a] + (0.0 if (b.open_top and a == d - 1) else thick) for a in range(d)]
+            outer_lo, outer_hi = cfg.wall_box_extent(b)
             if any(outer_lo[a] < cfg.domain.lo[a] - eps or outer_hi[a] > cfg.domain.hi[a] + eps for a in range(d)):
                 raise ConfigError(f"wall_box with its {cfg.wall_layers(b)} layers spans [{_fmt(outer_lo)}]..[{_fmt(outer_hi)}], "
                                   f"outside the domain [{_fmt(cfg.domain.lo)}]..[{_fmt(cfg.domain.hi)}]; enlarge the domain",

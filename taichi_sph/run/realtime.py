@@ -97,8 +97,18 @@ def candidate_spacings(cfg: Config) -> list[float]:
 
 
 def at_dx(cfg: Config, dx: float, solver: str | None = None) -> Config:
-    """The config at spacing dx (and solver): every other key kept."""
+    """The config at spacing dx (and solver): every other key kept but the domain, grown where a wall_box's layers
+    (thicker at a coarser dx) would reach past it, as the config's validation asks of a user."""
     cfg = dataclasses.replace(cfg, particles=dataclasses.replace(cfg.particles, dx=float(dx)))
+    lo, hi = tuple(cfg.domain.lo), tuple(cfg.domain.hi)
+    periodic = cfg.domain.periodic or (False,) * cfg.dim
+    for body in cfg.bodies:
+        if body.type == "wall_box":
+            outer_lo, outer_hi = cfg.wall_box_extent(body)
+            lo = tuple(a if p else min(a, b) for a, b, p in zip(lo, outer_lo, periodic))
+            hi = tuple(a if p else max(a, b) for a, b, p in zip(hi, outer_hi, periodic))
+    if lo != tuple(cfg.domain.lo) or hi != tuple(cfg.domain.hi):
+        cfg = dataclasses.replace(cfg, domain=dataclasses.replace(cfg.domain, lo=lo, hi=hi))
     return dataclasses.replace(cfg, solver=solver) if solver else cfg
 
 

@@ -63,9 +63,11 @@ def device_label(arch: str) -> str:
 
 
 def cache_key(cfg: Config, solver: str) -> str:
-    """Machine, arch, scene (its config without dx, time, outputs, rendering) and solver."""
+    """Machine, arch, scene (its config without dx, time, outputs, rendering, and the domain, which `at_dx` grows
+    with the walls at a coarse dx) and solver."""
     scene = to_dict(cfg)
-    for k in ("name", "description", "time", "output", "render", "probes", "metrics", "realtime", "solver", "arch"):
+    for k in ("name", "description", "time", "output", "render", "probes", "metrics", "realtime", "solver", "arch",
+              "domain"):
         scene.pop(k, None)
     scene["particles"].pop("dx", None)
     digest = hashlib.sha1(json.dumps(scene, sort_keys=True, default=str).encode()).hexdigest()[:12]
