@@ -20,9 +20,16 @@ ISPH_SHARED_ALPHA_FACTOR = 0.5
 # h / dx when a scene does not set particles.hdx. WCSPH, 2.0 (~50 neighbours in 2D): at 1.3 (~21) a standing wave
 # with no diffusion and no shifting turned its lattice into noise within half a period (kinetic energy 2 -> 5 J,
 # period -6%, amplitude 0.64 of theory after 3 periods); at 2.0 it keeps it (period -1.2%, amplitude 1.01,
-# energy -0.3% a period: standing_wave_2d at dx 0.025). ISPH, 1.3: its summation density pairs at h = 2 dx
-# on the stretching drop (0.13 dx, a void), and its wave runs at 1.3 (docs/isph.md).
-DEFAULT_HDX = {"wcsph": 2.0, "isph": 1.3}
+# energy -0.3% a period: standing_wave_2d at dx 0.025). ISPH, by dimension: its summation density (the
+# density-invariance source) pairs at h = 2 dx on the stretching drop (0.13 dx, a void), and reads an arrangement's
+# disorder as compression the more the fewer neighbours it has, so the projection expands a disordered fluid. In 2D
+# h = 1.3 dx (~21 neighbours) is too few once a splash disorders the fluid: a drop into a pool (docs/notes/
+# drop_into_pool_2d.yaml) gained energy from t = 0.65 s and ended "unstable" at 0.9 s, and a 4 cm standing wave at
+# 2.8 s; 1.5 dx (~28) runs both (to 1.2 s; wave ok over 3 periods) and keeps the 2 cm wave within issue 23's targets
+# at 40 and 80 particles over the depth (1.4: pool "unstable" at 1.0 s; 1.6: the 2 cm wave +2.6% energy a period;
+# session 26, docs/isph.md). In 3D 1.3 dx already gives ~74 neighbours (the 3D wave at 1.5: amplitude 0.974 but its
+# volume drifts, -17% of the wave's energy a period).
+DEFAULT_HDX = {"wcsph": {1: 2.0, 2: 2.0, 3: 2.0}, "isph": {1: 1.3, 2: 1.5, 3: 1.3}}
 # the kernels a scene may choose, with their support radius / h (sph/kernels.py builds them)
 KERNEL_SUPPORT = {"cubic_spline": 2.0, "wendland_c2": 2.0, "wendland_c4": 2.0, "quintic_spline": 3.0, "gaussian": 3.0,
                   "poly6_spiky": 2.0}
@@ -49,7 +56,7 @@ class Domain:
 class Particles:
     dx: float = opt(0.02, "initial particle spacing", unit="m", positive=True)
     hdx: float | None = opt(None, "smoothing length over spacing, h = hdx * dx; None = the solver's default "
-                                  "(DEFAULT_HDX: 2.0 for WCSPH, 1.3 for ISPH)", positive=True)
+                                  "(DEFAULT_HDX: 2.0 for WCSPH; ISPH 1.5 in 2D, 1.3 in 1D and 3D)", positive=True)
     kernel: str = opt("wendland_c2", "smoothing kernel", choices=tuple(KERNEL_SUPPORT))
     max_neighbors: int | str = opt(AUTO, "capacity of each particle's neighbour list ('auto': 2.5x the lattice count)")
     skin: float | str = opt(AUTO, "Verlet skin as a fraction of the support radius: lists cover support x (1 + skin) and "
@@ -336,7 +343,7 @@ class ISPH:
                                                          "with half; docs/isph.md)", minimum=0.0)
     cfl: float | None = opt(None, "Courant number of ISPH's adaptive step; None = time.cfl. ISPH's step follows the flow "
                                   "speed, WCSPH's the sound speed, so the same number means steps ~10x apart", positive=True)
-    hdx: float | None = opt(None, "h / dx for ISPH; None = particles.hdx, or 1.3 when that is unset. ISPH's summation density (its density-invariance "
+    hdx: float | None = opt(None, "h / dx for ISPH; None = particles.hdx, or when that is unset 1.5 in 2D, 1.3 in 1D and 3D (DEFAULT_HDX). ISPH's summation density (its density-invariance "
                                   "source, its density error) spreads with the arrangement's disorder the more the smaller h is: "
                                   "WCSPH's continuity density does not see it", positive=True)
     shifting_coefficient: float | None = opt(None, "A of the particle shift in ISPH; None = shifting.coefficient (ISPH's corrected "
@@ -517,7 +524,7 @@ class Config:
     @property
     def hdx(self) -> float:
         """h / dx for this run's solver (isph.hdx, particles.hdx, or the solver's DEFAULT_HDX)."""
-        shared = self.particles.hdx if self.particles.hdx is not None else DEFAULT_HDX[self.solver]
+        shared = self.particles.hdx if self.particles.hdx is not None else DEFAULT_HDX[self.solver][self.dim]
         return self.for_solver("hdx", shared)
 
     @property
