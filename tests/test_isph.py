@@ -533,3 +533,28 @@ def test_artificial_viscosity_does_not_expand_a_free_surface(tmp_path):
         assert res.summary["status"] == "ok"
         energy[alpha] = read_timeseries(tmp_path / str(alpha) / "timeseries.csv")["energy_above_rest"]
     assert (energy[0.01][1:] < energy[0.0][1:]).all(), energy
+
+
+def test_the_density_source_removes_at_most_the_capped_error_a_step():
+    """capped_density_error: an error within isph.max_density_correction passes unchanged, a larger one is cut to it
+    (both signs), so one step's Shao & Lo source is that of a 5% error at most; the config's default is 0.05 and
+    null switches the cap off in the solver."""
+    from taichi_sph.physics.ppe_terms import capped_density_error, ppe_source
+
+    @ti.kernel
+    def capped(rho: ti.f32, cap: ti.f32) -> ti.f32:
+        return capped_density_error(rho, 1000.0, cap)
+
+    @ti.kernel
+    def source(rho: ti.f32) -> ti.f32:
+        return ppe_source(0.0, capped_density_error(rho, 1000.0, 0.05), 1000.0, 0.01, 1.0)
+
+    assert capped(1030.0, 0.05) == pytest.approx(1030.0)
+    assert capped(970.0, 0.05) == pytest.approx(970.0)
+    assert capped(1300.0, 0.05) == pytest.approx(1050.0)
+    assert capped(700.0, 0.05) == pytest.approx(950.0)
+    assert source(1300.0) == pytest.approx(source(1050.0)) and source(1050.0) == pytest.approx(-0.05 / 1e-4, rel=1e-5)
+    cfg = load_config(bundled_configs_dir() / "standing_wave_2d.yaml", ["solver=isph"])
+    assert cfg.isph.max_density_correction == 0.05
+    off = load_config(bundled_configs_dir() / "standing_wave_2d.yaml", ["solver=isph", "isph.max_density_correction=null"])
+    assert ISPHSolver(off, build_particles(off)).max_density_correction is None

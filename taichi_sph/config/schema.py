@@ -334,6 +334,15 @@ class ISPH:
                                    "pressure) or 'explicit' (body force and viscous terms: the pressure is the projection's "
                                    "response to the step, ~ 1/dt^2 through the density source, and a limit on it feeds back: "
                                    "a shorter step, a larger correction, a shorter step)", choices=("total", "explicit"))
+    max_density_correction: float | None = opt(0.05, "the density error |rho - rho0| / rho0 the density-invariance source "
+                                                      "removes in one step at most (physics/ppe_terms.py capped_density_error): "
+                                                      "the source removes the whole error a step, so a sudden large error (a "
+                                                      "void closing, a run-up merging) would be a pressure pulse of the whole "
+                                                      "fluid. A drop into a pool at h = 1.5 dx: 'unstable' at t = 1.25 s in 1 of "
+                                                      "3 starts without the cap, ok to 2 s in 3 of 3 with 0.05 (0.02: "
+                                                      "'unstable' at 1.73 s in 1 of 2: an impact's compression needs its "
+                                                      "correction); drops, waves, hydrostatics, square: identical; "
+                                                      "docs/isph.md. null = no cap", minimum=0.0)
     compression_only: bool = opt(False, "density-invariance source corrects compression only (rho floored at rho0): for free-surface "
                                         "flows, where a kernel-sum deficit is not expansion; off in closed boxes (one-sided source drifts)")
     artificial_viscosity_alpha: float | None = opt(None, "Monaghan alpha in ISPH's predictor (on every pair; the floor of the "

@@ -30,6 +30,7 @@ from taichi_sph.physics.momentum import (
     pressure_difference_pair_terms,
 )
 from taichi_sph.physics.ppe_terms import (
+    capped_density_error,
     corrected_velocity_divergence,
     neumann_wall_pressure_difference,
     ppe_source,
@@ -69,6 +70,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.default_blend = ic.source == "blend" and ic.blend is None
         self.beta = SOURCE_WEIGHT[ic.source](FREE_SURFACE_BLEND if ic.blend is None else ic.blend)
         self.compression_only = ic.compression_only
+        self.max_density_correction = ic.max_density_correction
+        self.cap_density_error = ic.max_density_correction is not None
         self.corrected_divergence = ic.divergence == "corrected"
         self.surface_threshold = ic.free_surface_threshold
         self.one_sided = ic.one_sided_ratio is not None
@@ -212,6 +215,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                         rho = ti.max(rho, self.rho0)
                 if ti.static(self.compression_only):
                     rho = ti.max(rho, self.rho0)
+                if ti.static(self.cap_density_error):
+                    rho = capped_density_error(rho, self.rho0, self.max_density_correction)
                 rhs -= vol_a * ppe_source(div_v, rho, self.rho0, dt_rule, self.beta)
                 if diag > 0.0:
                     E.diag[a] = diag
