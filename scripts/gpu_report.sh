@@ -20,7 +20,9 @@
 #                                                       both solvers, 2D/3D, against the CPU; < 10 min)
 #   5. TAICHI_SPH_TEST_ARCH=vulkan pytest -m vulkan    (the same on the GPU's own Vulkan driver: the backend
 #                                                       AMD, Intel and Apple GPUs get; docs/gpu.md)
-# PARTS=1,2 (say) runs a subset; REPORT_ARGS adds bench options (e.g. "--particles 100000,1000000").
+# PARTS=1,2 (say) runs a subset; REPORT_ARGS adds bench options (e.g. "--particles 100000,1000000", or
+# "--parts scenes" for the bundled scenes' real-time factors alone: ISPH's cases compile ~1 min each on CUDA, so
+# the whole report does not fit a 15-minute device lease; the JSON keeps every case finished before a limit).
 # Every part's output goes to OUT_DIR (default gpu-report/); send that folder back.
 set -uo pipefail
 cd "$(dirname "$0")/.."

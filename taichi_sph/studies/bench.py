@@ -27,8 +27,10 @@ SCENE_DEFAULTS = {2: ["particles.hdx=1.3"], 3: []}
 
 
 def scene_overrides(dim: int, n_target: int) -> list[str]:
-    """dx for a dam break with about n_target particles (fluid + wall) in total."""
+    """dx for a dam break with about n_target particles (fluid + wall) in total; at a coarse dx also the domain
+    grown to hold the thicker walls (run/realtime.py at_dx), which the config's validation asks for."""
     from taichi_sph.config.loader import bundled_configs_dir, load_config
+    from taichi_sph.run.realtime import at_dx
     from taichi_sph.scene.bodies import build_particles
     path = bundled_configs_dir() / SCENES[dim]
     base = load_config(path, SCENE_DEFAULTS[dim])
@@ -36,9 +38,14 @@ def scene_overrides(dim: int, n_target: int) -> list[str]:
     n0 = build_particles(base).n
     dx = dx0 * (n0 / n_target) ** (1.0 / dim)
     for _ in range(3):  # refine: walls scale as dx^-(dim-1)
-        n = build_particles(load_config(path, SCENE_DEFAULTS[dim] + [f"particles.dx={dx:.6g}"])).n
+        n = build_particles(at_dx(base, float(f"{dx:.6g}"))).n
         dx *= (n / n_target) ** (1.0 / dim)
-    return SCENE_DEFAULTS[dim] + [f"particles.dx={dx:.6g}"]
+    out = SCENE_DEFAULTS[dim] + [f"particles.dx={dx:.6g}"]
+    grown = at_dx(base, float(f"{dx:.6g}")).domain
+    if grown != base.domain:
+        out += [f"domain.lo=[{', '.join(repr(float(v)) for v in grown.lo)}]",
+                f"domain.hi=[{', '.join(repr(float(v)) for v in grown.hi)}]"]
+    return out
 
 
 def pysphscene_overrides() -> list[str]:
