@@ -233,4 +233,10 @@ def test_a_coarser_spacing_grows_the_domain_to_hold_the_thicker_walls():
     assert coarse.domain.hi[0] == pytest.approx(hi[0]) and coarse.domain.hi[1] == cfg.domain.hi[1]  # open top
     assert coarse.bodies == cfg.bodies
     assert at_dx(cfg, cfg.particles.dx).domain == cfg.domain
+    # the walls' layers follow the solver's own h: a scene with no hdx is 4 layers for WCSPH (2 dx), 3 for ISPH (1.5)
+    pool = load_config(ROOT / "docs/notes/drop_into_pool_2d.yaml", ["solver=isph"])
+    w, i = at_dx(pool, 0.2, "wcsph"), at_dx(pool, 0.2)
+    validate(w, "at_dx")
+    assert w.solver == "wcsph" and w.domain.lo[0] == pytest.approx(-4 * 0.2)
+    assert i.solver == "isph" and i.domain.lo[0] == pytest.approx(-3 * 0.2)
     assert realtime_measure.cache_key(coarse, "wcsph") == realtime_measure.cache_key(cfg, "wcsph"), "one entry a scene"

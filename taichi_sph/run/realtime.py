@@ -100,6 +100,8 @@ def at_dx(cfg: Config, dx: float, solver: str | None = None) -> Config:
     """The config at spacing dx (and solver): every other key kept but the domain, grown where a wall_box's layers
     (thicker at a coarser dx) would reach past it, as the config's validation asks of a user."""
     cfg = dataclasses.replace(cfg, particles=dataclasses.replace(cfg.particles, dx=float(dx)))
+    if solver:
+        cfg = dataclasses.replace(cfg, solver=solver)  # first: the walls' layers follow the solver's h
     lo, hi = tuple(cfg.domain.lo), tuple(cfg.domain.hi)
     periodic = cfg.domain.periodic or (False,) * cfg.dim
     for body in cfg.bodies:
@@ -109,7 +111,7 @@ def at_dx(cfg: Config, dx: float, solver: str | None = None) -> Config:
             hi = tuple(a if p else max(a, b) for a, b, p in zip(hi, outer_hi, periodic))
     if lo != tuple(cfg.domain.lo) or hi != tuple(cfg.domain.hi):
         cfg = dataclasses.replace(cfg, domain=dataclasses.replace(cfg.domain, lo=lo, hi=hi))
-    return dataclasses.replace(cfg, solver=solver) if solver else cfg
+    return cfg
 
 
 def steps_per_simulated_second(cfg: Config) -> float:
