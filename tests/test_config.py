@@ -56,7 +56,10 @@ def test_wall_layers_default_to_the_kernel_support(tmp_path):
     path = write(tmp_path / "parent.yaml", PARENT.replace("kernel: cubic_spline", "kernel: wendland_c2"))
     wcsph, isph = load_config(path), load_config(path, ["solver=isph"])
     box = wcsph.bodies[1]
-    assert box.layers is None and wcsph.wall_layers(box) == 4 and isph.wall_layers(box) == 3  # h 2 dx / 1.3 dx
+    assert box.layers is None and wcsph.wall_layers(box) == 4 and isph.wall_layers(box) == 3  # h 2 dx / 1.5 dx
+    assert (wcsph.hdx, isph.hdx) == (2.0, 1.5), "2D defaults (ISPH 1.5 dx since session 26: docs/isph.md)"
+    wave3d = bundled_configs_dir() / "standing_wave_3d.yaml"  # no hdx: the 3D defaults
+    assert (load_config(wave3d).hdx, load_config(wave3d, ["solver=isph"]).hdx) == (2.0, 1.3)
     assert not [c for c in a_priori_checks(wcsph) + a_priori_checks(isph) if c.name == "wall_layers"]
     n_wall = {cfg.solver: build_particles(cfg).n_wall for cfg in (wcsph, isph)}
     assert n_wall["wcsph"] > n_wall["isph"]
