@@ -10,7 +10,7 @@ tensile terms did on the dam break and the rotating square: docs/notes/momentum.
 
 import taichi as ti
 
-from taichi_sph.physics.density import moment_pair_term, renormalised_gradient
+from taichi_sph.physics.density import continuity_rate, moment_pair_term, renormalised_gradient
 
 
 @ti.func
@@ -117,7 +117,7 @@ def monaghan_viscosity(m_b: float, v_ab, r_ab, r2: float, h: float, c0: float, r
 @ti.func
 def compression_rate(m_b: float, v_ab, rho_a: float, grad_w) -> float:
     """-div v_a += m_b v_ab . grad_a W_ab / rho_a (the continuity equation's rate over rho_a)."""
-    return m_b * v_ab.dot(grad_w) / rho_a
+    return continuity_rate(m_b, v_ab, grad_w) / rho_a
 
 
 @ti.func
