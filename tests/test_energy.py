@@ -29,6 +29,16 @@ def test_tait_elastic_energy_is_zero_at_rest_and_positive_either_side():
     assert e[2] == pytest.approx(0.5 * 40.0 ** 2 * 0.01 ** 2, rel=0.02)
 
 
+def test_tait_elastic_energy_of_the_linear_equation_of_state_is_the_limit_of_gamma_to_one():
+    """gamma = 1 (p = c0^2 (rho - rho0)) divided by zero in the general formula: its limit, continuous in gamma."""
+    rho = np.array([990.0, 1000.0, 1010.0])
+    e1 = tait_elastic_energy(rho, 1000.0, 1000.0 * 40.0 ** 2, 1.0)
+    near = tait_elastic_energy(rho, 1000.0, 1000.0 * 40.0 ** 2 / 1.0001, 1.0001)
+    assert np.all(np.isfinite(e1)) and e1[1] == pytest.approx(0.0, abs=1e-12)
+    assert e1[[0, 2]] == pytest.approx(near[[0, 2]], rel=1e-3)
+    assert e1[2] == pytest.approx(0.5 * 40.0 ** 2 * 0.01 ** 2, rel=0.02)
+
+
 @pytest.mark.parametrize("solver", ["wcsph", "isph"])
 def test_a_tank_at_rest_is_its_own_rest_state(solver):
     cfg = load_config(CONFIGS / "hydrostatic_2d.yaml", [f"solver={solver}"])

@@ -23,8 +23,12 @@ from taichi_sph.validation import diagnostics
 
 
 def tait_elastic_energy(rho: np.ndarray, rho0: float, b: float, gamma: float) -> np.ndarray:
-    """e(rho) per unit mass of the Tait equation p = B ((rho / rho0)^gamma - 1): 0 at rho0, >= 0 either side."""
+    """e(rho) per unit mass of the Tait equation p = B ((rho / rho0)^gamma - 1): 0 at rho0, >= 0 either side;
+    e = (B / rho0) (s^(gamma-1) / (gamma - 1) + 1 / s - gamma / (gamma - 1)), s = rho / rho0, and its limit
+    (B / rho0) (ln s + 1 / s - 1) for the linear equation of state, gamma = 1."""
     s = np.asarray(rho, dtype=np.float64) / rho0
+    if abs(gamma - 1.0) < 1e-9:
+        return (b / rho0) * (np.log(s) + 1.0 / s - 1.0)
     return (b / rho0) * (s ** (gamma - 1.0) / (gamma - 1.0) + 1.0 / s - gamma / (gamma - 1.0))
 
 
