@@ -239,6 +239,16 @@ class WCSPH:
                                          choices=("symmetric", "kernel_sum_scaled"))
     surface_scale_floor: float = opt(0.5, "kernel_sum_scaled: S / S_lattice is floored at this (a flat surface's top row has "
                                           "0.65 at h = 2 dx; a lone splash particle would have ~0.1)", positive=True)
+    transport_velocity: bool = opt(False, "Adami, Hu & Adams (2013)'s transport-velocity formulation: particles move with "
+                                          "v + dt a_b, a_b the symmetric gradient of a uniform background pressure "
+                                          "(`transport_background_pressure`), which pushes them toward a uniform arrangement, "
+                                          "and the momentum equation takes the extra stress div(rho v (x) (v_transport - v)) "
+                                          "/ rho (physics/momentum.py background_pressure_acceleration, "
+                                          "transport_velocity_stress). Needs `wcsph.density: summation` and shifting off; "
+                                          "for a fluid that fills its container (the background pressure would pull a free "
+                                          "surface apart)")
+    transport_background_pressure: float | None = opt(None, "p_b of the transport velocity; None = rho0 c0^2 (Adami et al.'s "
+                                                            "p0)", unit="Pa", positive=True)
     wall_clearance: float | None = opt(0.25, "kinematic wall condition (as ISPH's): the speed toward a wall face is cut so "
                                              "that no fluid particle comes closer than this to it (fluid starts dx/2 away). "
                                              "Without it the thin fast layer after a dam-break impact sinks up to 0.32 dx past "

@@ -108,6 +108,11 @@ def validate(cfg: Config, source: str) -> None:
         raise ConfigError("the corrected symmetric pressure gradient is the adjoint of the corrected continuity divergence: it "
                           "needs `wcsph.density: continuity`, no tensile instability control and the symmetric surface "
                           "gradient", source=source, key="wcsph.pressure_gradient")
+    if cfg.solver == "wcsph" and cfg.wcsph.transport_velocity and (
+            cfg.wcsph.density != "summation" or cfg.shifting_enabled or cfg.wcsph.integrator != "symplectic_euler"):
+        raise ConfigError("the transport velocity moves the particles toward a uniform arrangement itself and keeps the density "
+                          "by summation: it needs `wcsph.density: summation`, `shifting.enabled: false` and the "
+                          "symplectic_euler integrator", source=source, key="wcsph.transport_velocity")
     clearance = cfg.isph.wall_clearance if cfg.solver == "isph" else cfg.wcsph.wall_clearance
     if cfg.shifting.walls == "mirror" and clearance is None:  # explicit only: auto falls back
         raise ConfigError(f"the mirror reflects the fluid in the wall faces of the kinematic wall condition, which "

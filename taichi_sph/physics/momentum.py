@@ -72,6 +72,22 @@ def corrected_symmetric_pressure_gradient(vol_b: float, p_a: float, l_a, p_b: fl
 
 
 @ti.func
+def background_pressure_acceleration(m_b: float, p_b: float, rho_a: float, rho_b: float, grad_w):
+    """-m_b p_b (1 / rho_a^2 + 1 / rho_b^2) grad_a W_ab: the symmetric pressure gradient of a uniform pressure p_b, zero
+    on a full regular support and pointing down the kernel sum's gradient elsewhere. Adami, Hu & Adams (2013), JCP 241,
+    292: the transport velocity v~ = v + dt a_b moves particles toward a uniform arrangement (their p_b = p0 = rho0 c0^2)."""
+    return symmetric_pressure_gradient(m_b, p_b, rho_a, p_b, rho_b, grad_w)
+
+
+@ti.func
+def transport_velocity_stress(m_b: float, rho_a: float, v_a, dv_a, rho_b: float, v_b, dv_b, grad_w):
+    """m_b (A_a / rho_a^2 + A_b / rho_b^2) . grad_a W_ab with A = rho v (x) (v~ - v), dv = v~ - v: the symmetric form of
+    div(A) / rho, the momentum the transport velocity carries that the particle velocity does not (Adami, Hu & Adams
+    2013, eq. 8). A . grad W = rho v (dv . grad W)."""
+    return m_b * (v_a * dv_a.dot(grad_w) / rho_a + v_b * dv_b.dot(grad_w) / rho_b)
+
+
+@ti.func
 def monaghan_artificial_pressure(p: float, rho: float, epsilon: float, epsilon_positive: float) -> float:
     """Monaghan (2000) R = epsilon |p| / rho^2 for p < 0, epsilon_positive p / rho^2 for p >= 0 (his 0.01)."""
     return ti.select(p < 0.0, -epsilon * p, epsilon_positive * p) / (rho * rho)

@@ -33,6 +33,8 @@ from taichi_sph.physics.momentum import (
     monaghan_tensile_correction,
     monaghan_viscosity,
     morris_laminar_viscosity,
+    background_pressure_acceleration,
+    transport_velocity_stress,
     pressure_difference_pair_terms,
     renormalised_laplacian,
     symmetric_pressure_gradient,
@@ -79,6 +81,13 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         self.init_kinematic_walls(arrays, cfg.wcsph.wall_clearance)
         # fluid particles with a wall neighbour (set by the force pass, read by the next drift: same order)
         self.near_wall = P.add_scalar(dtype=ti.i32) if self.kinematic_walls else None
+        # the transport velocity (Adami et al. 2013): a_b is set by the force pass and read by the next drift (same
+        # order); dv = v~ - v of the last drift is read by the force pass after the rebuild between: permuted
+        self.transport = f.transport_velocity
+        self.acc_background = P.add_vector() if self.transport else None
+        self.transport_dv = P.add_vector(persistent=True) if self.transport else None
+        p_b = cfg.wcsph.transport_background_pressure
+        self.p_transport = p_b if p_b is not None else self.rho0 * self.c0 ** 2
 
     # -- the pair loop ------------------------------------------------------------------
     @ti.kernel
@@ -193,7 +202,10 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                                      acc_pressure=ti.Vector.zero(float, self.dim), q_a=q_a,
                                      sum_dp=ti.Vector.zero(float, self.dim), visc=ti.Vector.zero(float, self.dim),
                                      lap_m=0.0, alpha_a=self.alpha, compression=0.0,
-                                     moment=ti.Matrix.zero(float, self.dim, self.dim))
+                                     moment=ti.Matrix.zero(float, self.dim, self.dim),
+                                     acc_b=ti.Vector.zero(float, self.dim), dv_a=ti.Vector.zero(float, self.dim))
+                    if ti.static(self.transport):
+                        sums.dv_a = self.transport_dv[a]
                     if ti.static(self.features.viscosity_switch):
                         sums.alpha_a = self.av_alpha[a]
                     self.nsearch.for_each_neighbor(a, P.x, self.force_pair, sums)
@@ -211,6 +223,8 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                     if ti.static(self.features.gravity or self.features.central_force):
                         acc += self.body_force(xa)
                     P.acc[a] = acc
+                    if ti.static(self.transport):
+                        self.acc_background[a] = sums.acc_b
                     if ti.static(self.kinematic_walls):
                         self.near_wall[a] = sums.near_wall
                     if ti.static(self.features.density_diffusion != "none"):
@@ -231,6 +245,8 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         sums.near_wall = ti.max(sums.near_wall, ti.select(is_fluid_b, 0, 1))
         v_ab = sums.va - P.v[b]
         self.pressure_pair(a, b, m_b, rho_b, r_ab, grad_w, sums)
+        if ti.static(self.transport):
+            self.transport_pair(b, m_b, rho_b, is_fluid_b, grad_w, sums)
         if ti.static(self.features.tensile_correction):
             self.tensile_correction_pair(b, m_b, rho_b, is_fluid_b, r, grad_w, sums)
         if ti.static(self.features.density_diffusion != "none"):
@@ -283,6 +299,16 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
             sums.acc_pressure += symmetric_pressure_gradient(m_b, sums.q_a, sums.rho_a, q_b, rho_b, grad_w)
         else:
             sums.acc += symmetric_pressure_gradient(m_b, sums.q_a, sums.rho_a, q_b, rho_b, grad_w)
+
+    @ti.func
+    def transport_pair(self, b, m_b, rho_b, is_fluid_b, grad_w, sums: ti.template()):
+        """The background pressure's acceleration a_b (every neighbour: a wall stands in for the fluid it mirrors) and
+        the transport velocity's extra stress (fluid neighbours: a wall particle does not move with a transport
+        velocity), Adami, Hu & Adams (2013)."""
+        sums.acc_b += background_pressure_acceleration(m_b, self.p_transport, sums.rho_a, rho_b, grad_w)
+        if is_fluid_b:
+            sums.acc += transport_velocity_stress(m_b, sums.rho_a, sums.va, sums.dv_a, rho_b, self.particles.v[b],
+                                                  self.transport_dv[b], grad_w)
 
     @ti.func
     def tensile_correction_pair(self, b, m_b, rho_b, is_fluid_b, r, grad_w, sums: ti.template()):
@@ -375,7 +401,13 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                     if ti.static(kick):
                         P.v[a] += dt_kick * P.acc[a]
                         self.wall_guard(a, dt)
-                    P.x[a] += dt * P.v[a]
+                    if ti.static(self.transport):
+                        # x += dt v~, v~ = v + dt a_b (Adami et al. 2013, eq. 9)
+                        dv = dt * self.acc_background[a]
+                        self.transport_dv[a] = dv
+                        P.x[a] += dt * (P.v[a] + dv)
+                    else:
+                        P.x[a] += dt * P.v[a]
                     self.step_switch_alpha(a, dt)
                     if ti.static(self.features.density == "continuity"):
                         rate = self.drho[a]

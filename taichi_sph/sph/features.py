@@ -40,6 +40,7 @@ class Features:
     shifting_correction: bool     # Taylor correction of v after the shift
     shifting_density: str         # continuity | taylor | fixed: WCSPH's continuity density after a shift; none otherwise
     clamp_negative_pressure: bool
+    transport_velocity: bool = False   # Adami et al. 2013's transport velocity and its extra stress (WCSPH)
 
     @classmethod
     def from_config(cls, cfg: Config, n_wall: int, wide: str = "f64") -> "Features":
@@ -85,6 +86,7 @@ class Features:
             shifting_density=(cfg.shifting.density if cfg.shifting_enabled and cfg.solver == "wcsph"
                               and wc.density == "continuity" else "none"),
             clamp_negative_pressure=cfg.solver == "wcsph" and wc.clamp_negative_pressure,
+            transport_velocity=cfg.solver == "wcsph" and wc.transport_velocity,
         )
 
     def compiled_in(self) -> list[str]:
@@ -102,6 +104,8 @@ class Features:
                 terms.append("tensile_instability_control")
             if self.surface_scaled_pressure:
                 terms.append("kernel_sum_scaled_pressure")
+            if self.transport_velocity:
+                terms.append("transport_velocity")
         if self.artificial_viscosity:
             terms.append("monaghan_artificial_viscosity" + (":morris_monaghan_switch" if self.viscosity_switch else ""))
         if self.laminar_viscosity:
