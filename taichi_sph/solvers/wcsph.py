@@ -23,6 +23,7 @@ from taichi_sph.physics.density import (
     renormalised_gradient,
 )
 from taichi_sph.physics.momentum import (
+    background_pressure_acceleration,
     compression_rate,
     consistent_velocity_difference,
     corrected_pressure_gradient,
@@ -33,11 +34,10 @@ from taichi_sph.physics.momentum import (
     monaghan_tensile_correction,
     monaghan_viscosity,
     morris_laminar_viscosity,
-    background_pressure_acceleration,
-    transport_velocity_stress,
     pressure_difference_pair_terms,
     renormalised_laplacian,
     symmetric_pressure_gradient,
+    transport_velocity_stress,
 )
 from taichi_sph.scene.bodies import FLUID, ParticleArrays
 from taichi_sph.solvers.base import SolverBase
