@@ -109,3 +109,34 @@ def test_transport_velocity_keeps_a_lid_driven_arrangement_ordered():
     assert closest_tvf > 0.25 and closest_tvf > 1.5 * closest_none
     assert spread_tvf < 0.8 * spread_none
     assert abs(drift_tvf) < 2e-3
+
+
+def test_transport_velocity_refuses_a_free_surface():
+    """The open box half full: its top rows start with a truncated support, which the background pressure would
+    read as a gap to fill; the solver says so instead of pulling the surface apart."""
+    d = box_config()
+    d["bodies"][0]["hi"] = [1.0, 0.5]
+    d["bodies"][1]["open_top"] = True
+    cfg = config_from_dict(d)
+    solver = make_solver(cfg, build_particles(cfg))
+    with pytest.raises(ConfigError, match="free surface"):
+        solver.prepare()
+
+
+def test_a_refused_free_surface_is_one_line_and_exit_2_with_no_output(tmp_path, capsys):
+    """`taichi-sph run` of a scene with a free surface and the transport velocity: one line naming the key, exit 2, and
+    the run folder left without a config.yaml (the refusal comes at start-up, after the folder is prepared)."""
+    import yaml
+
+    from taichi_sph.cli.main import main
+    d = box_config()
+    d["bodies"][0]["hi"] = [1.0, 0.5]
+    d["bodies"][1]["open_top"] = True
+    path = tmp_path / "open.yaml"
+    path.write_text(yaml.safe_dump(d))
+    out = tmp_path / "run"
+    code = main(["run", str(path), "--no-render", "--quiet", "--out", str(out)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert len(err) == 1 and "wcsph.transport_velocity" in err[0] and "free surface" in err[0]
+    assert not (out / "config.yaml").exists()

@@ -211,6 +211,12 @@ class RunFolder:
         return self
 
     # -- files ----------------------------------------------------------------------------------
+    def discard_config(self) -> None:
+        """Remove the config.yaml a run that refused to start wrote, and the folder when that leaves it empty."""
+        (self.path / "config.yaml").unlink(missing_ok=True)
+        if self.path.is_dir() and not any(self.path.iterdir()):
+            self.path.rmdir()
+
     def write_config(self, resolved: dict) -> Path:
         """config.yaml: the resolved config, keys in the given order."""
         path = self.path / "config.yaml"

@@ -19,7 +19,7 @@ import numpy as np
 
 from taichi_sph.config.loader import to_dict
 from taichi_sph.config.schema import Config
-from taichi_sph.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, RenderUnavailable, UsageError
+from taichi_sph.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, RenderUnavailable, SPHError, UsageError
 from taichi_sph.run.checks import a_priori_checks
 from taichi_sph.run.disk import is_no_space, no_space_failure
 from taichi_sph.run.energy_watch import ENERGY_COLUMNS, EnergyWatch
@@ -118,7 +118,12 @@ class Simulation:
         folder, loop = self._run_folder(resume)
         self.log(f"{cfg.name}: {solver.name}, dim {cfg.dim}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles, "
                  f"dx {cfg.particles.dx:g}, h {cfg.h:.4g}, c0 {solver.c0:.4g} m/s, arch {current_arch_name()}")
-        solver.prepare()
+        try:
+            solver.prepare()
+        except SPHError:
+            if folder is not None and resume is None:  # the scene refused at start-up: no half-written folder
+                folder.discard_config()
+            raise
         if resume is not None:
             try:
                 solver.restore_state(resume.arrays, resume.meta["solver_plain"])

@@ -12,6 +12,7 @@ import numpy as np
 import taichi as ti
 
 from taichi_sph.config.schema import Config
+from taichi_sph.errors import ConfigError
 from taichi_sph.physics.density import (
     antuono_density_difference,
     continuity_rate,
@@ -44,6 +45,11 @@ from taichi_sph.solvers.base import SolverBase
 from taichi_sph.solvers.device_loop import DeviceResidentLoop
 from taichi_sph.solvers.shifting import ParticleShifting
 from taichi_sph.sph.schedule import LoopSchedule
+
+
+# a fluid particle's summation density at the start below this fraction of rho0 is at a free surface (a full support
+# reads 1; a flat surface's top row ~0.65 at h = 2 dx)
+TRANSPORT_MIN_START_DENSITY = 0.9
 
 
 @ti.data_oriented
@@ -473,6 +479,20 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
             self.launch_steps(1, -math.inf, -math.inf, serial)
             self.wcsph_rates(self.stats_host, serial)
         self.stats_now = self.read_stats(reduce=False)
+        if self.transport:
+            self.refuse_free_surface()
+
+    def refuse_free_surface(self) -> None:
+        """The transport velocity's background pressure reads a free surface's kernel-sum deficit as a gap to fill
+        and pulls the surface apart: a fluid particle whose summation density at the start is below
+        TRANSPORT_MIN_START_DENSITY rho0 (a truncated support: a free surface) is a config error."""
+        kind = self.particles.kind.to_numpy()[: self.n]
+        rho = self.particles.rho.to_numpy()[: self.n][kind == FLUID]
+        open_rows = int((rho < TRANSPORT_MIN_START_DENSITY * self.rho0).sum())
+        if open_rows:
+            raise ConfigError(f"the transport velocity is for a fluid that fills its container, and {open_rows} fluid "
+                              f"particles start at a free surface (kernel sum below {TRANSPORT_MIN_START_DENSITY:g} of "
+                              f"the lattice's): switch it off or close the container", key="wcsph.transport_velocity")
 
     def extra_summary(self) -> dict:
         """Which loop schedule the step ran with (decided by timing on the CPU); the wall condition's count."""
