@@ -46,7 +46,6 @@ from taichi_sph.solvers.device_loop import DeviceResidentLoop
 from taichi_sph.solvers.shifting import ParticleShifting
 from taichi_sph.sph.schedule import LoopSchedule
 
-
 # a fluid particle's summation density at the start below this fraction of rho0 is at a free surface (a full support
 # reads 1; a flat surface's top row ~0.65 at h = 2 dx)
 TRANSPORT_MIN_START_DENSITY = 0.9
