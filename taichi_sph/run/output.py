@@ -212,10 +212,8 @@ class RunFolder:
 
     # -- files ----------------------------------------------------------------------------------
     def discard_config(self) -> None:
-        """Remove the config.yaml a run that refused to start wrote, and the folder when that leaves it empty."""
+        """Remove the config.yaml a run that refused to start wrote (the folder stays: the run's lock is in it)."""
         (self.path / "config.yaml").unlink(missing_ok=True)
-        if self.path.is_dir() and not any(self.path.iterdir()):
-            self.path.rmdir()
 
     def write_config(self, resolved: dict) -> Path:
         """config.yaml: the resolved config, keys in the given order."""

@@ -248,10 +248,11 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         is_fluid_b = P.kind[b] == FLUID
         # branch-free: an `if` that sets a flag in this loop made the f32 pass 3x slower
         sums.near_wall = ti.max(sums.near_wall, ti.select(is_fluid_b, 0, 1))
-        v_ab = sums.va - P.v[b]
+        v_b = P.v[b]
+        v_ab = sums.va - v_b
         self.pressure_pair(a, b, m_b, rho_b, r_ab, grad_w, sums)
         if ti.static(self.transport):
-            self.transport_pair(b, m_b, rho_b, is_fluid_b, grad_w, sums)
+            self.transport_pair(b, m_b, rho_b, v_b, is_fluid_b, grad_w, sums)
         if ti.static(self.features.tensile_correction):
             self.tensile_correction_pair(b, m_b, rho_b, is_fluid_b, r, grad_w, sums)
         if ti.static(self.features.density_diffusion != "none"):
@@ -306,14 +307,14 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
             sums.acc += symmetric_pressure_gradient(m_b, sums.q_a, sums.rho_a, q_b, rho_b, grad_w)
 
     @ti.func
-    def transport_pair(self, b, m_b, rho_b, is_fluid_b, grad_w, sums: ti.template()):
+    def transport_pair(self, b, m_b, rho_b, v_b, is_fluid_b, grad_w, sums: ti.template()):
         """The background pressure's acceleration a_b (every neighbour: a wall stands in for the fluid it mirrors) and
         the transport velocity's extra stress (fluid neighbours: a wall particle does not move with a transport
         velocity), Adami, Hu & Adams (2013)."""
         sums.acc_b += background_pressure_acceleration(m_b, self.p_transport, sums.rho_a, rho_b, grad_w)
         if is_fluid_b:
-            sums.acc += transport_velocity_stress(m_b, sums.rho_a, sums.va, sums.dv_a, rho_b, self.particles.v[b],
-                                                  self.transport_dv[b], grad_w)
+            sums.acc += transport_velocity_stress(m_b, sums.rho_a, sums.va, sums.dv_a, rho_b, v_b, self.transport_dv[b],
+                                                  grad_w)
 
     @ti.func
     def tensile_correction_pair(self, b, m_b, rho_b, is_fluid_b, r, grad_w, sums: ti.template()):

@@ -40,7 +40,7 @@ class Features:
     shifting_correction: bool     # Taylor correction of v after the shift
     shifting_density: str         # continuity | taylor | fixed: WCSPH's continuity density after a shift; none otherwise
     clamp_negative_pressure: bool
-    transport_velocity: bool = False   # Adami et al. 2013's transport velocity and its extra stress (WCSPH)
+    transport_velocity: bool      # Adami et al. 2013's transport velocity and its extra stress (WCSPH)
 
     @classmethod
     def from_config(cls, cfg: Config, n_wall: int, wide: str = "f64") -> "Features":
