@@ -38,8 +38,8 @@ def hydrostatic_cfg(**over):
 def test_hydrostatic_small_tank_pressure(tmp_path):
     """16 x 16 particles at rest for 0.3 s (~4 sound crossings). Measured 1.5%: at this coarse resolution
     the free-surface layer and the wall rows carry much of the L2 norm. The bound 2% still fails for the
-    h = 1.3 dx kernel (2.2%, lattice gradient 2.6% low) and for any broken wall or EOS term (several %);
-    the 0.32% of the full-size tank is checked by `taichi-sph run configs/hydrostatic_2d.yaml`."""
+    h = 1.3 dx kernel without the lattice-normalised gradient (2.2%: tests/test_gradient_normalisation.py) and for
+    any broken wall or EOS term (several %); the full-size tank's 0.07% is checked by `taichi-sph validate`."""
     res = run(hydrostatic_cfg(), tmp_path)
     s = res.summary
     assert s["status"] == "ok"

@@ -230,6 +230,14 @@ class WCSPH:
                                                    "in tension (p_a < 0) away from the free surface takes the pressure "
                                                    "gradient in the difference form (p_b - p_a), which has no pairwise "
                                                    "attraction; needs `shifting.model: sun` (its free-surface region)")
+    gradient_normalisation: str = opt("lattice", "'lattice': the symmetric pressure gradient and the continuity divergence "
+                                                 "divided by their sum for a linear field on the lattice, (1/dim) sum_b V_b "
+                                                 "r_ab |dW/dr| (scene/lattice.py lattice_gradient_sum, as ISPH's PPE), so "
+                                                 "that both are exact for a linear field on the rest lattice: the pressure "
+                                                 "that holds a fluid against gravity is rho g d, not rho g d / sum "
+                                                 "(Wendland C2: sum 0.974 at h = 1.3 dx, 0.9992 at 2 dx in 2D); 'none': "
+                                                 "the plain kernel gradient. Both halves scaled alike keep the pressure's "
+                                                 "work equal to the energy the density stores", choices=("lattice", "none"))
     surface_pressure_gradient: str = opt("symmetric", "symmetric: -sum_b m_b (p_a / rho_a^2 + p_b / rho_b^2) grad W_ab; "
                                                       "kernel_sum_scaled: the same with p / (S / S_lattice) in place of p "
                                                       "where the kernel sum S is deficient (the free-surface band): the "

@@ -41,6 +41,7 @@ from taichi_sph.physics.momentum import (
     transport_velocity_stress,
 )
 from taichi_sph.scene.bodies import FLUID, ParticleArrays
+from taichi_sph.scene.lattice import lattice_gradient_sum
 from taichi_sph.solvers.base import SolverBase
 from taichi_sph.solvers.device_loop import DeviceResidentLoop
 from taichi_sph.solvers.shifting import ParticleShifting
@@ -77,6 +78,10 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         tc = cfg.wcsph.tensile_correction
         self.tc_epsilon, self.tc_epsilon_positive, self.tc_n = tc.epsilon, tc.epsilon_positive, tc.n
         self.surface_scale_floor = cfg.wcsph.surface_scale_floor
+        # 1 / (the lattice's sum for a linear field): the symmetric gradient and the plain continuity divergence exact
+        # on the rest lattice (the corrected forms carry their own L_a)
+        self.grad_norm = (1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np)
+                          if cfg.wcsph.gradient_normalisation == "lattice" else 1.0)
         # q = p / (S / S_lattice) of every particle (walls: p), set before the force pass
         self.q_pressure = P.add_scalar() if f.surface_scaled_pressure else None
         self.w_dx = float(self.kernel.w_np(np.array([self.dx]))[0])
@@ -296,15 +301,16 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
 
     @ti.func
     def symmetric_pressure_pair(self, b, m_b, rho_b, p_b, grad_w, sums: ti.template()):
-        """The symmetric pressure gradient, or (tensile instability control) both forms summed apart."""
+        """The symmetric pressure gradient (times grad_norm), or (tensile instability control) both forms summed apart."""
         q_b = p_b  # the pressure the symmetric form takes (kernel_sum_scaled: q = p / (S / S_lattice))
         if ti.static(self.features.surface_scaled_pressure):
             q_b = self.q_pressure[b]
+        g = self.grad_norm * grad_w
         if ti.static(self.features.tensile_instability_control):
-            sums.acc_tension += difference_pressure_gradient(m_b, sums.p_a, sums.rho_a, p_b, rho_b, grad_w)
-            sums.acc_pressure += symmetric_pressure_gradient(m_b, sums.q_a, sums.rho_a, q_b, rho_b, grad_w)
+            sums.acc_tension += difference_pressure_gradient(m_b, sums.p_a, sums.rho_a, p_b, rho_b, g)
+            sums.acc_pressure += symmetric_pressure_gradient(m_b, sums.q_a, sums.rho_a, q_b, rho_b, g)
         else:
-            sums.acc += symmetric_pressure_gradient(m_b, sums.q_a, sums.rho_a, q_b, rho_b, grad_w)
+            sums.acc += symmetric_pressure_gradient(m_b, sums.q_a, sums.rho_a, q_b, rho_b, g)
 
     @ti.func
     def transport_pair(self, b, m_b, rho_b, v_b, is_fluid_b, grad_w, sums: ti.template()):
@@ -369,7 +375,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         if ti.static(self.corrected_symmetric):
             rate = corrected_continuity_rate(P.rho[a], P.mass[b] / P.rho[b], u_ab, self.l_matrix[a] @ grad_w)
         else:
-            rate = continuity_rate(P.mass[b], u_ab, grad_w)
+            rate = continuity_rate(P.mass[b], u_ab, self.grad_norm * grad_w)
         return rate
 
     @ti.func
