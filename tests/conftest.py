@@ -109,7 +109,7 @@ SLOW = {
     "test_multigrid.py::test_mgcg_and_cg_give_the_same_pressure_on_the_same_step[neumann_pinned]": "62 s",
     "test_executor.py::test_resume_runs_only_the_case_whose_summary_is_missing": "61 s",
     "test_drops.py::test_stretched_drop[wcsph-0.2-overrides0-0.03-0.5]": "61 s",
-    "test_stability.py::test_five_times_the_cfl_limit_is_classified_unstable": "60 s",
+    "test_stability.py::test_six_times_the_cfl_limit_is_classified_unstable": "60 s",
     "test_multigrid.py::test_preconditioner_is_symmetric_positive_definite[dirichlet_only]": "59 s",
     "test_wcsph.py::test_hydrostatic_small_tank_pressure": "58 s",
     "test_resume.py::test_killed_run_resumes_to_the_uninterrupted_state[20]": "58 s",

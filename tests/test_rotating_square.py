@@ -105,8 +105,15 @@ def test_rotating_square_short(tmp_path, solver):
     assert e["angle_lag_error_deg"] < 0.5
     assert e["angular_momentum_rel_drift_max"] < 0.01
     # both start from the series (ISPH: the signed Dirichlet value at the outer particles' depth; its first output is
-    # after one step: +4%); WCSPH's acoustic ripple
-    assert abs(e["centre_pressure_rel_error_start"]) < 0.05
+    # after one step: +4%). WCSPH's centre pressure rings acoustically about the series, +-8% at this dx (c0 = 10 U),
+    # and the first output (t = 0.05) falls in a trough: -7.5% with the lattice-normalised gradient, whose ripple is
+    # centred -1.1% off the series (-3.6% at t = 0.05 without it, centred +2.4% off); its RMS over the run 0.064
+    # (0.067 without)
+    if solver == "isph":
+        assert abs(e["centre_pressure_rel_error_start"]) < 0.05
+    else:
+        assert abs(e["centre_pressure_rel_error_start"]) < 0.1
+        assert e["centre_pressure_rms_error"] < 0.07
     if solver == "isph":
         # the end state's pressure too: the last step, cut to land on t_end, keeps the step rule's dt in the PPE
         # source (it multiplied the end pressure ~40x here: RMS error 12)
