@@ -36,6 +36,7 @@ def bulk_vertical_acceleration(normalisation: str) -> np.ndarray:
     """a_y / g of the fluid particles whose support neither the walls nor the surface cut, at t = 0 (after prepare)."""
     cfg = config_from_dict(tank(normalisation))
     solver = make_solver(cfg, build_particles(cfg))
+    assert ("lattice_normalised_gradient" in solver.features.compiled_in()) == (normalisation == "lattice")
     solver.prepare()
     n = solver.n
     x = solver.particles.x.to_numpy()[:n]

@@ -81,7 +81,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         # 1 / (the lattice's sum for a linear field): the symmetric gradient and the plain continuity divergence exact
         # on the rest lattice (the corrected forms carry their own L_a)
         self.grad_norm = (1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np)
-                          if cfg.wcsph.gradient_normalisation == "lattice" else 1.0)
+                          if f.gradient_normalisation == "lattice" else 1.0)
         # q = p / (S / S_lattice) of every particle (walls: p), set before the force pass
         self.q_pressure = P.add_scalar() if f.surface_scaled_pressure else None
         self.w_dx = float(self.kernel.w_np(np.array([self.dx]))[0])

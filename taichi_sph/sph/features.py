@@ -32,6 +32,7 @@ class Features:
     tensile_instability_control: bool  # Sun et al. 2017's difference form in tension (WCSPH)
     surface_scaled_pressure: bool      # p / (S / S_lattice) in the symmetric pressure gradient (WCSPH)
     pressure_gradient: str        # symmetric | corrected | corrected_symmetric (WCSPH; ISPH's is always corrected)
+    gradient_normalisation: str   # lattice | none: WCSPH's symmetric gradient and plain continuity divergence / kappa
     integrator: str
     periodic: tuple[bool, ...]
     reflecting: bool
@@ -77,6 +78,7 @@ class Features:
             tensile_instability_control=cfg.solver == "wcsph" and wc.tensile_instability_control,
             surface_scaled_pressure=cfg.solver == "wcsph" and wc.surface_pressure_gradient == "kernel_sum_scaled",
             pressure_gradient=wc.pressure_gradient if cfg.solver == "wcsph" else "corrected",
+            gradient_normalisation=wc.gradient_normalisation if cfg.solver == "wcsph" else "none",
             integrator=wc.integrator if cfg.solver == "wcsph" else "symplectic_euler",
             periodic=tuple(cfg.periodic),
             reflecting=cfg.reflecting.enabled,
@@ -96,6 +98,8 @@ class Features:
             terms.append(f"clock_and_stopping_test:{self.wide}")
         if self.solver == "wcsph":
             terms += ["tait_eos", f"{self.pressure_gradient}_pressure_gradient", f"density:{self.density}", f"integrator:{self.integrator}"]
+            if self.gradient_normalisation == "lattice":
+                terms.append("lattice_normalised_gradient")
             if self.density_diffusion != "none":
                 terms.append(f"density_diffusion:{self.density_diffusion}")
             if self.tensile_correction:
