@@ -15,6 +15,7 @@ from taichi_sph.config.loader import config_from_dict
 from taichi_sph.scene.bodies import FLUID, build_particles
 from taichi_sph.scene.lattice import lattice_gradient_sum
 from taichi_sph.solvers.registry import make_solver
+from taichi_sph.sph.kernels import make_kernel
 
 DX, G = 0.02, 9.81
 
@@ -50,12 +51,8 @@ def bulk_vertical_acceleration(normalisation: str) -> np.ndarray:
 
 def test_lattice_gradient_sum_of_the_short_wendland_kernel():
     cfg = config_from_dict(tank("lattice"))
-    assert lattice_gradient_sum(cfg, lambda r: _dw_dr(cfg, r)) == pytest.approx(0.9739, abs=2e-4)
-
-
-def _dw_dr(cfg, r):
-    from taichi_sph.sph.kernels import make_kernel
-    return make_kernel("wendland_c2", 2, cfg.h).dw_dr_np(r)
+    kernel = make_kernel(cfg.particles.kernel, cfg.dim, cfg.h)
+    assert lattice_gradient_sum(cfg, kernel.dw_dr_np) == pytest.approx(0.9739, abs=2e-4)
 
 
 def test_a_hydrostatic_column_is_at_rest_in_the_bulk_only_with_the_normalised_gradient():
