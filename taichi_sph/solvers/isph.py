@@ -1,14 +1,15 @@
 """Incompressible SPH by projection: predictor -> pressure Poisson equation -> pressure correction -> shift.
 
-One step, every operator at the positions x^n (Cummins & Rudman 1999 projection, Shao & Lo 2003 Laplacian):
-neighbours and the summation density (over the lattice's kernel sum, so a full lattice has rho0); free-surface
-particles (kernel sum, cone scan, one-sided ratio: physics/free_surface.py) get a Dirichlet pressure; predictor
+One step (`isph.time_integration`; midpoint, the default in a confined fluid: x moves dt/2 with v^n first and every
+operator below acts at x^{n+1/2}; euler, the default with a free surface: at x^n) (Cummins & Rudman 1999
+projection, Shao & Lo 2003 Laplacian): neighbours and the summation density (over the lattice's kernel sum, so a
+full lattice has rho0); free-surface particles (kernel sum, cone scan, one-sided ratio: physics/free_surface.py) get a Dirichlet pressure; predictor
 v* = v + dt (g + viscous); PPE -sum_b K_ab (p_a - p_b) = s_a with rows scaled by V_a (symmetric positive definite),
 walls a pairwise hydrostatic Neumann condition, source div(v*) / dt, (rho0 - rho*) / (rho0 dt^2) or their blend
 (`isph.source`; rho the summation density, or with `isph.density: continuity` each particle's density carried
 by det(I + grad u) of its step's displacement and shift: docs/isph.md), solved matrix-free (linalg/ppe.py); walls
 get the Adami pressure; v = v* - dt grad p / rho0 with the kernel-gradient-corrected difference gradient;
-x += dt v; kinematic wall condition; shifting (solvers/shifting.py).
+x += dt/2 v (midpoint; euler: dt v); kinematic wall condition; shifting (solvers/shifting.py).
 Invariants: a fluid at rest stays at rest (hydrostatic walls, a gradient exact for a linear pressure at any level);
 with no free surface the pressure has mean `fluid.background_pressure`. The step in detail, and what was measured
 on the way (compression_only, the stretching drop's void, one-sided supports): docs/notes/isph.md.
@@ -20,14 +21,17 @@ import time
 import numpy as np
 import taichi as ti
 
-from taichi_sph.config.schema import Config
+from taichi_sph.config.schema import AUTO, Config
 from taichi_sph.linalg.ppe import BB, DIRICHLET, N_UNKNOWN, SUM_B, UNKNOWN, MatrixFreePPE
 from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradient_pair_terms
 from taichi_sph.physics.momentum import (
     compression_rate,
+    consistent_velocity_difference,
+    laplacian_moment_term,
     monaghan_viscosity,
     morris_laminar_viscosity,
     pressure_difference_pair_terms,
+    renormalised_laplacian,
 )
 from taichi_sph.physics.ppe_terms import (
     capped_density_error,
@@ -73,6 +77,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.max_density_correction = ic.max_density_correction
         self.cap_density_error = ic.max_density_correction is not None
         self.corrected_divergence = ic.divergence == "corrected"
+        # isph.time_integration auto: set by prepare (find_confinement), before any kernel that reads it is compiled
+        self.auto_integration = ic.time_integration == AUTO
+        self.midpoint = ic.time_integration == "midpoint"
         self.surface_threshold = ic.free_surface_threshold
         self.one_sided = ic.one_sided_ratio is not None
         self.one_sided_ratio = ic.one_sided_ratio if self.one_sided else 0.0
@@ -130,13 +137,16 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         correction adds the pressure part. Walls enter as in WCSPH: ghost velocity when no-slip.
         With `isph.step_force: explicit` also max |a*| (explicit_acc, the next step's force limit)."""
         P = self.particles
+        if ti.static(self.consistent_laplacian):
+            self.velocity_gradient_pass(False)
         if ti.static(self.explicit_step_force):
             if self.live():  # (a step a batch skips: live 0, isph_loop.py)
                 self.explicit_acc[None] = 0.0  # (a serial task before the loop: no host write a step)
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
                 xa = P.x[a]
-                sums = ti.Struct(va=P.v[a], acc=self.body_force(xa), alpha_a=self.alpha, compression=0.0)
+                sums = ti.Struct(va=P.v[a], acc=self.body_force(xa), alpha_a=self.alpha, compression=0.0,
+                                 visc=ti.Vector.zero(float, self.dim), lap_m=0.0)
                 if ti.static(self.features.viscosity_switch):
                     sums.alpha_a = self.av_alpha[a]
                 if ti.static(self.features.laminar_viscosity or self.features.artificial_viscosity):
@@ -144,6 +154,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 if ti.static(self.features.viscosity_switch):
                     self.compression[a] = sums.compression
                 acc = sums.acc
+                if ti.static(self.renormalised_laplacian):
+                    acc += renormalised_laplacian(sums.visc, sums.lap_m, self.lap_moment)
                 P.acc[a] = acc
                 if ti.static(self.explicit_step_force):
                     ti.atomic_max(self.explicit_acc[None], acc.norm())
@@ -171,8 +183,16 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                                            self.pair_alpha(sums.alpha_a, b), self.beta_av, grad_w, True)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
-                sums.acc += self.visc_norm * morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,
-                                                     self.eta2, grad_w)
+                v_visc = v_ab
+                if ti.static(self.consistent_laplacian):
+                    v_visc = consistent_velocity_difference(v_ab, self.grad_v[a], r_ab)
+                visc = morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_visc, r_ab, r2, self.eta2,
+                                                grad_w)
+                if ti.static(self.renormalised_laplacian):
+                    sums.visc += visc
+                    sums.lap_m += laplacian_moment_term(P.mass[b] / self.rho0, r_ab, r2, self.eta2, grad_w)
+                else:
+                    sums.acc += self.visc_norm * visc
 
     # -- 3. the linear system -----------------------------------------------------------------
     @ti.kernel
@@ -287,12 +307,14 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
     def correct_and_move_pass(self, dt):
         """v = v* - dt grad p / rho0 with the corrected gradient (Bonet & Lok 1999)
         grad p_a = (M_a^T)^-1 sum_b V_b (p_b - p_a) grad_a W_ab, M_a = sum_b V_b (x_b - x_a) (x) grad_a W_ab,
-        over fluid and wetted walls (p_w > p_b; a dry wall is air); then x += dt v. Where M_a is near
-        singular (a few splash particles) the lattice factor replaces it.
+        over fluid and wetted walls (p_w > p_b; a dry wall is air); then x += dt v (midpoint: dt/2, the step's
+        second half). Where M_a is near singular (a few splash particles) the lattice factor replaces it.
         Near walls the kinematic condition (physics/walls.py) keeps particles `isph.wall_clearance` off
         every wall face within reach: a free-surface film on a wall has Dirichlet pressure and nothing
         else holds it (after the dam-break impact one run in two left a film particle 0.39 dx inside the
-        back wall). Pressure keeps the bulk dx/2 off; `wall_cuts` counts the particles it had to stop."""
+        back wall). The cut is for a whole dt from here: the midpoint step's second half drift and the next step's
+        first (dt/2 each, with this v). Pressure keeps the bulk dx/2 off; `wall_cuts` counts the particles it had
+        to stop."""
         P = self.particles
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
@@ -313,11 +335,22 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 P.v[a] = v
         if ti.static(self.continuity):
             self.continuity_density.deform_by_motion(dt)
+        self.drift_pass(ti.static(0.5 if self.midpoint else 1.0) * dt)
+
+    @ti.func
+    def drift_pass(self, dt):
+        """x += dt v (fluid), reflected at non-periodic faces."""
+        P = self.particles
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
                 P.x[a] += dt * P.v[a]
                 if ti.static(self.features.reflecting):
                     self.reflect(a)
+
+    @ti.kernel
+    def first_half_drift(self, dt: float):
+        """The midpoint step's first half: x^{n+1/2} = x^n + dt/2 v^n."""
+        self.drift_pass(0.5 * dt)
 
     @ti.func
     def pressure_gradient_pair(self, a, b, r_ab, sums: ti.template()):
@@ -336,6 +369,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.find_confinement()
         if self.confined and self.default_blend:
             self.beta = CONFINED_BLEND  # before any kernel that reads it is compiled
+        if self.auto_integration:
+            self.midpoint = self.confined
         self.floor_surface_band_density()
         if self.features.walls:
             self.wall_pressure()
@@ -364,7 +399,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         s = self.read_stats()
         dt_free = self.free_dt(s)  # the step before the run loop shortens it to land on t_end
         dt = min(dt_free, self.dt_cap)
-        if self.step_count > 0:
+        if self.midpoint:
+            self.first_half_drift(dt)
+        if self.step_count > 0 or self.midpoint:
             self.rebuild_neighbors()
             if self.strained_depth:
                 self.strain_dt[None] = dt

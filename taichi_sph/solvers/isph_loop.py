@@ -161,6 +161,11 @@ class ISPHDeviceLoop:
         self.predict_velocity_pass(self.step_dt())
 
     @ti.kernel
+    def first_half_drift_on_clock(self):
+        """The midpoint step's first half drift with the clock's dt."""
+        self.drift_pass(0.5 * self.step_dt())
+
+    @ti.kernel
     def assemble_ppe_on_clock(self):
         self.assemble_ppe_pass(self.step_dt(), ti.cast(self.dt_free_field[None], float))
 
@@ -322,8 +327,11 @@ class ISPHDeviceLoop:
         budget = self.iteration_budget()
         start = self.step_count
         for i in range(steps):
-            self.open_batch_step(i if first else i + 1, int(start + i > 0))
-            if start + i > 0:
+            rebuild = start + i > 0 or self.midpoint
+            self.open_batch_step(i if first else i + 1, int(rebuild))
+            if self.midpoint:
+                self.first_half_drift_on_clock()
+            if rebuild:
                 self.rebuild_on_gate()
                 self.detect_free_surface()
             self.step_head()
@@ -340,7 +348,7 @@ class ISPHDeviceLoop:
         done, stalled = int(out[DONE_STEPS]), out[STALLED] != 0.0
         records = out[DONE_STEPS + 1:].reshape(BATCH_CAPACITY, N_RECORD)
         started = done + int(stalled)
-        self.builds += sum(1 for i in range(started) if start + i > 0)
+        self.builds += sum(1 for i in range(started) if start + i > 0 or self.midpoint)
         dts = []
         for k in range(done):
             dts.append(self.record_step(records[k]))
@@ -409,7 +417,9 @@ class ISPHDeviceLoop:
         """One step with dt from the device; returns the dt used (read back with the PPE's state)."""
         self.sync_clock(t_end)
         self.open_device_step()
-        if self.step_count > 0:
+        if self.midpoint:
+            self.first_half_drift_on_clock()
+        if self.step_count > 0 or self.midpoint:
             self.rebuild_neighbors()
             self.detect_free_surface()
         self.step_head()
