@@ -32,23 +32,16 @@ def test_auto_takes_the_midpoint_step_in_a_confined_fluid(scene, midpoint):
     assert solver.midpoint is midpoint
 
 
-@pytest.mark.parametrize("integrator, low, high", [("midpoint", 0.0, 2e-3), ("euler", 5e-3, 2e-2)])
-def test_a_falling_column_follows_free_fall(integrator, low, high):
+@pytest.mark.parametrize("integrator, clock, low, high", [
+    ("midpoint", "float64=auto", 0.0, 2e-3), ("midpoint", "float64=false", 0.0, 2e-3),
+    ("euler", "float64=auto", 5e-3, 2e-2)])
+def test_a_falling_column_follows_free_fall(integrator, clock, low, high):
     """column_1d to t = 0.25 s (before the impact at 0.32 s): the centre of mass against y0 - g t^2 / 2. The
     midpoint step is exact for a constant acceleration (x^{n+1} - x^n = dt (v^n + v^{n+1}) / 2); symplectic Euler
     moves with v^{n+1} and falls ahead by g t dt / 2, dt / t of the distance. Measured: midpoint 0.08%, euler 1.6%
-    of the distance fallen (f32, the column's own pressure)."""
-    s = isph_run("column_1d.yaml", "time.t_end=0.25", f"isph.time_integration={integrator}")
+    of the distance fallen (f32, the column's own pressure). Both step loops (the device clock, f64; the host's,
+    float64: false): a drift missing from one (particles at half speed) is 25% here."""
+    s = isph_run("column_1d.yaml", "time.t_end=0.25", f"isph.time_integration={integrator}", clock)
     assert s["status"] == "ok"
+    assert s["step_loop"] == ("host" if clock == "float64=false" else "device")
     assert low <= s["errors"]["free_fall_com_error_rel"] < high
-
-
-def test_taylor_green_with_the_midpoint_step_and_the_consistent_laplacian():
-    """The bundled vortex (nx 50, t = 2): L1 velocity error 0.0033 and decay-rate error +0.18% measured (the
-    euler step with the normalised Laplacian, the scene before session 30: 0.0134 / +1.0%, the euler step's
-    first-order error in the decay rate, ~+0.4% per ms, cancelling the normalised Laplacian's -0.3%)."""
-    s = isph_run("taylor_green_2d.yaml")
-    e = s["errors"]
-    assert s["status"] == "ok"
-    assert e["l1_velocity"] < 0.005
-    assert abs(e["decay_rate_rel_error"]) < 0.005

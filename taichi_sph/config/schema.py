@@ -79,12 +79,12 @@ class Fluid:
     laplacian: str = opt("morris", "the laminar viscosity's Laplacian: Morris et al. (1997) as it is, or 'normalised': divided by "
                                    "its lattice sum (scene/lattice.py lattice_gradient_sum, as ISPH's PPE), so that it is exact "
                                    "for a quadratic velocity on the lattice at any h / dx (quintic at h = dx: the plain form is "
-                                   "0.6% low, a decay-rate error that no resolution removes), or 'renormalised': over each "
-                                   "particle's own second moment (physics/momentum.py renormalised_laplacian), or "
-                                   "'consistent': 'renormalised' of the velocity differences less their linear part "
-                                   "<grad v>_a r_ab (an extra pass for the renormalised velocity gradient; "
-                                   "physics/momentum.py consistent_velocity_difference; Fatehi & Manzari 2011): no "
-                                   "first-order error on a disordered arrangement",
+                                   "0.6% low, a decay-rate error that no resolution removes), or 'renormalised': WCSPH only, over each "
+                                   "particle's own second moment (physics/momentum.py renormalised_laplacian; ISPH takes "
+                                   "'normalised' for it), or 'consistent': WCSPH only, 'renormalised' of the velocity "
+                                   "differences less their linear part <grad v>_a r_ab (an extra pass for the renormalised "
+                                   "velocity gradient; physics/momentum.py consistent_velocity_difference; Fatehi & "
+                                   "Manzari 2011): no first-order error on a disordered arrangement (ISPH takes 'normalised')",
                           choices=("morris", "normalised", "renormalised", "consistent"))
     background_pressure: float = opt(0.0, "constant added to the equation of state (p_b); keeps pressure positive in closed "
                                           "flows; for ISPH the ambient pressure at a free surface and the mean pressure "
@@ -257,15 +257,6 @@ class WCSPH:
                                           "surface apart)")
     transport_background_pressure: float | None = opt(None, "p_b of the transport velocity; None = rho0 c0^2 (Adami et al.'s "
                                                             "p0)", unit="Pa", positive=True)
-    time_integration: str = opt(AUTO, "the step's integrator: 'midpoint' (drift-kick-drift, position Verlet: x "
-                                      "moves dt/2 with v^n, the predictor, PPE and correction act at x^{n+1/2}, x "
-                                      "moves dt/2 with v^{n+1}; second order), 'euler' (every operator at x^n, "
-                                      "x^{n+1} = x^n + dt v^{n+1}; symplectic Euler, first order: Taylor-Green's "
-                                      "decay rate off by ~+0.4% per ms of step) or 'auto' = midpoint in a fluid that "
-                                      "fills its container (Taylor-Green nx 50: L1 0.0134 -> 0.0033), euler with a "
-                                      "free surface (dam_break_buchner_2d's impact compresses more with midpoint: "
-                                      "'unstable' in 1 of 4 starts; docs/isph.md)",
-                                choices=(AUTO, "midpoint", "euler"))
     wall_clearance: float | None = opt(0.25, "kinematic wall condition (as ISPH's): the speed toward a wall face is cut so "
                                              "that no fluid particle comes closer than this to it (fluid starts dx/2 away). "
                                              "Without it the thin fast layer after a dam-break impact sinks up to 0.32 dx past "
@@ -392,11 +383,11 @@ class ISPH:
     time_integration: str = opt(AUTO, "the step's integrator: 'midpoint' (drift-kick-drift, position Verlet: x "
                                       "moves dt/2 with v^n, the predictor, PPE and correction act at x^{n+1/2}, x "
                                       "moves dt/2 with v^{n+1}; second order), 'euler' (every operator at x^n, "
-                                      "x^{n+1} = x^n + dt v^{n+1}; symplectic Euler, first order: Taylor-Green's "
-                                      "decay rate off by ~+0.4% per ms of step) or 'auto' = midpoint in a fluid that "
-                                      "fills its container (Taylor-Green nx 50: L1 0.0134 -> 0.0033), euler with a "
-                                      "free surface (dam_break_buchner_2d's impact compresses more with midpoint: "
-                                      "'unstable' in 1 of 4 starts; docs/isph.md)",
+                                      "x^{n+1} = x^n + dt v^{n+1}; symplectic Euler, first order: at a "
+                                      "constant acceleration x runs ahead by g t dt / 2) or 'auto' = midpoint in a "
+                                      "fluid that fills its container (Taylor-Green nx 50 and cavity: as euler within run-to-run "
+                                      "noise), euler with a free surface (dam_break_buchner_2d's impact compresses more "
+                                      "with midpoint: 'unstable' in 1 of 4 starts; docs/isph.md)",
                                 choices=(AUTO, "midpoint", "euler"))
     wall_clearance: float | None = opt(0.25, "kinematic wall condition: the speed toward a wall face is cut so that no fluid particle "
                                              "comes closer than this to it (fluid starts dx/2 away); holds free-surface films, "

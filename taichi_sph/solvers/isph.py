@@ -26,12 +26,9 @@ from taichi_sph.linalg.ppe import BB, DIRICHLET, N_UNKNOWN, SUM_B, UNKNOWN, Matr
 from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradient_pair_terms
 from taichi_sph.physics.momentum import (
     compression_rate,
-    consistent_velocity_difference,
-    laplacian_moment_term,
     monaghan_viscosity,
     morris_laminar_viscosity,
     pressure_difference_pair_terms,
-    renormalised_laplacian,
 )
 from taichi_sph.physics.ppe_terms import (
     capped_density_error,
@@ -137,16 +134,13 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         correction adds the pressure part. Walls enter as in WCSPH: ghost velocity when no-slip.
         With `isph.step_force: explicit` also max |a*| (explicit_acc, the next step's force limit)."""
         P = self.particles
-        if ti.static(self.consistent_laplacian):
-            self.velocity_gradient_pass(False)
         if ti.static(self.explicit_step_force):
             if self.live():  # (a step a batch skips: live 0, isph_loop.py)
                 self.explicit_acc[None] = 0.0  # (a serial task before the loop: no host write a step)
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
                 xa = P.x[a]
-                sums = ti.Struct(va=P.v[a], acc=self.body_force(xa), alpha_a=self.alpha, compression=0.0,
-                                 visc=ti.Vector.zero(float, self.dim), lap_m=0.0)
+                sums = ti.Struct(va=P.v[a], acc=self.body_force(xa), alpha_a=self.alpha, compression=0.0)
                 if ti.static(self.features.viscosity_switch):
                     sums.alpha_a = self.av_alpha[a]
                 if ti.static(self.features.laminar_viscosity or self.features.artificial_viscosity):
@@ -154,8 +148,6 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 if ti.static(self.features.viscosity_switch):
                     self.compression[a] = sums.compression
                 acc = sums.acc
-                if ti.static(self.renormalised_laplacian):
-                    acc += renormalised_laplacian(sums.visc, sums.lap_m, self.lap_moment)
                 P.acc[a] = acc
                 if ti.static(self.explicit_step_force):
                     ti.atomic_max(self.explicit_acc[None], acc.norm())
@@ -183,16 +175,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                                            self.pair_alpha(sums.alpha_a, b), self.beta_av, grad_w, True)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
-                v_visc = v_ab
-                if ti.static(self.consistent_laplacian):
-                    v_visc = consistent_velocity_difference(v_ab, self.grad_v[a], r_ab)
-                visc = morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_visc, r_ab, r2, self.eta2,
-                                                grad_w)
-                if ti.static(self.renormalised_laplacian):
-                    sums.visc += visc
-                    sums.lap_m += laplacian_moment_term(P.mass[b] / self.rho0, r_ab, r2, self.eta2, grad_w)
-                else:
-                    sums.acc += self.visc_norm * visc
+                sums.acc += self.visc_norm * morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,
+                                                     self.eta2, grad_w)
 
     # -- 3. the linear system -----------------------------------------------------------------
     @ti.kernel

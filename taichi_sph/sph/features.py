@@ -67,7 +67,9 @@ class Features:
             gravity=cfg.has_gravity,
             central_force=cfg.central_force.omega > 0.0,
             laminar_viscosity=cfg.fluid.nu > 0.0,
-            laplacian=cfg.fluid.laplacian,
+            # ISPH takes 'normalised' for WCSPH's per-particle forms (solvers/base.py)
+            laplacian=("normalised" if cfg.solver == "isph" and cfg.fluid.laplacian in ("renormalised", "consistent")
+                       else cfg.fluid.laplacian),
             artificial_viscosity=(alpha > 0.0 or beta > 0.0 or cfg.viscosity_switch),
             viscosity_switch=cfg.viscosity_switch,
             density=wc.density if cfg.solver == "wcsph" else "summation",
