@@ -357,6 +357,6 @@ def test_docs_config_reference_is_current():
 def test_only_the_taylor_green_scene_carries_isph_keys():
     """Bundled scenes run ISPH with its defaults (issue 23; the Re 1000 cavity's shifting coefficient went in
     session 23: 0.0060 against 0.0059 with it). taylor_green_2d keeps issue 26's documented consistent-operator
-    options (h = dx, the divergence source, Sun's shift at A = 4)."""
+    options (h = dx, the divergence source, the Eulerian frame)."""
     carrying = [path.stem for path in BUNDLED if "isph" in yaml.safe_load(path.read_text())]
     assert carrying == ["taylor_green_2d"]

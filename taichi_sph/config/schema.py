@@ -389,6 +389,15 @@ class ISPH:
                                       "noise), euler with a free surface (dam_break_buchner_2d's impact compresses more "
                                       "with midpoint: 'unstable' in 1 of 4 starts; docs/isph.md)",
                                 choices=(AUTO, "midpoint", "euler"))
+    frame: str = opt("lagrangian", "'lagrangian': the particles move with the flow; 'eulerian': they stay where they "
+                                   "start and the predictor adds the advection -(v . grad) v with the renormalised "
+                                   "velocity gradient (Lind & Stansby 2016; physics/momentum.py eulerian_advection): no "
+                                   "disorder and no shift, the summation density stays rho0. Only for a fluid that fills "
+                                   "its container (a free surface is refused at the start). Taylor-Green nx 50 / 75 / "
+                                   "100: L1 0.0016 / 0.0010 / 0.00065 against 0.0134 / 0.0051 / 0.0023 lagrangian; the "
+                                   "lid-driven cavity at Re 100 is worse (centreline RMS 0.0061 against 0.0027: its "
+                                   "corner singularities with a central advection term; docs/isph.md)",
+                     choices=("lagrangian", "eulerian"))
     wall_clearance: float | None = opt(0.25, "kinematic wall condition: the speed toward a wall face is cut so that no fluid particle "
                                              "comes closer than this to it (fluid starts dx/2 away); holds free-surface films, "
                                              "which have no PPE pressure; None = off", unit="dx", minimum=0.0)

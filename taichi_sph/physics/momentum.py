@@ -186,6 +186,13 @@ def renormalised_velocity_gradient(sum_dv, moment):
 
 
 @ti.func
+def eulerian_advection(grad_v, v):
+    """-(v . grad) v = -<grad v>_a v_a: the convective acceleration at a particle that stays where it is (an Eulerian
+    frame; Lind & Stansby 2016, J. Comput. Phys. 326), with the renormalised velocity gradient, exact for a linear v."""
+    return -(grad_v @ v)
+
+
+@ti.func
 def consistent_velocity_difference(v_ab, grad_v_a, r_ab):
     """v_ab - <grad v>_a r_ab: the pair's velocity difference less its linear part, which is all a Laplacian should
     see (Fatehi & Manzari 2011). Brookshaw's / Morris's sum of the linear part, sum_b V_b (G r_ab) (r . grad W) / r^2,

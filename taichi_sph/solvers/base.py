@@ -75,8 +75,10 @@ class SolverBase(KinematicWalls, CheckpointState):
                                       group=None if self.wall_wall_pairs else self.particles.kind,
                                       access=cfg.particles.neighbor_access)
         self.x_ref = ti.Vector.field(cfg.dim, float, self.n) if self.skin > 0.0 else None
-        # fluid.laplacian consistent: <grad v>_a, set before the viscous pass after the last rebuild (not permuted)
-        self.grad_v = ti.Matrix.field(cfg.dim, cfg.dim, float, self.n) if self.consistent_laplacian else None
+        # fluid.laplacian consistent, isph.frame eulerian: <grad v>_a, set before the viscous pass (not permuted)
+        self.eulerian = cfg.solver == "isph" and cfg.isph.frame == "eulerian"  # isph.frame: the advection needs <grad v>_a
+        self.grad_v = (ti.Matrix.field(cfg.dim, cfg.dim, float, self.n) if self.consistent_laplacian or self.eulerian
+                       else None)
         self.builds = 0
         self.central_omega = cfg.central_force.omega
         self.central_center = None

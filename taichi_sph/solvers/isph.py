@@ -22,10 +22,12 @@ import numpy as np
 import taichi as ti
 
 from taichi_sph.config.schema import AUTO, Config
+from taichi_sph.errors import ConfigError
 from taichi_sph.linalg.ppe import BB, DIRICHLET, N_UNKNOWN, SUM_B, UNKNOWN, MatrixFreePPE
 from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradient_pair_terms
 from taichi_sph.physics.momentum import (
     compression_rate,
+    eulerian_advection,
     monaghan_viscosity,
     morris_laminar_viscosity,
     pressure_difference_pair_terms,
@@ -75,8 +77,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.cap_density_error = ic.max_density_correction is not None
         self.corrected_divergence = ic.divergence == "corrected"
         # isph.time_integration auto: set by prepare (find_confinement), before any kernel that reads it is compiled
-        self.auto_integration = ic.time_integration == AUTO
-        self.midpoint = ic.time_integration == "midpoint"
+        self.auto_integration = ic.time_integration == AUTO and not self.eulerian
+        self.midpoint = ic.time_integration == "midpoint" and not self.eulerian  # (eulerian: nothing drifts)
         self.surface_threshold = ic.free_surface_threshold
         self.one_sided = ic.one_sided_ratio is not None
         self.one_sided_ratio = ic.one_sided_ratio if self.one_sided else 0.0
@@ -110,7 +112,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
                                  ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid,
                                  ic.ppe.check_every, self.wide)
-        self.shifting = ParticleShifting(self, cfg.shifting_coefficient) if self.features.shifting else None
+        # isph.frame eulerian: the particles stay on their lattice, nothing to shift
+        self.shifting = (ParticleShifting(self, cfg.shifting_coefficient) if self.features.shifting and not self.eulerian
+                         else None)
         self.iterations: list[int] = []
         self.residuals: list[float] = []
         self.pure_neumann_steps = 0
@@ -130,10 +134,12 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
 
     @ti.func
     def predict_velocity_pass(self, dt):
-        """a* = g + viscous (Morris laminar, Monaghan artificial); v* = v + dt a*. acc keeps a* until the
-        correction adds the pressure part. Walls enter as in WCSPH: ghost velocity when no-slip.
+        """a* = g + viscous (Morris laminar, Monaghan artificial) (+ the advection -(v . grad) v with `isph.frame:
+        eulerian`); v* = v + dt a*. acc keeps a* until the correction adds the pressure part. Walls enter as in WCSPH: ghost velocity when no-slip.
         With `isph.step_force: explicit` also max |a*| (explicit_acc, the next step's force limit)."""
         P = self.particles
+        if ti.static(self.eulerian):
+            self.velocity_gradient_pass(False)
         if ti.static(self.explicit_step_force):
             if self.live():  # (a step a batch skips: live 0, isph_loop.py)
                 self.explicit_acc[None] = 0.0  # (a serial task before the loop: no host write a step)
@@ -148,6 +154,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 if ti.static(self.features.viscosity_switch):
                     self.compression[a] = sums.compression
                 acc = sums.acc
+                if ti.static(self.eulerian):
+                    acc += eulerian_advection(self.grad_v[a], P.v[a])
                 P.acc[a] = acc
                 if ti.static(self.explicit_step_force):
                     ti.atomic_max(self.explicit_acc[None], acc.norm())
@@ -319,7 +327,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 P.v[a] = v
         if ti.static(self.continuity):
             self.continuity_density.deform_by_motion(dt)
-        self.drift_pass(ti.static(0.5 if self.midpoint else 1.0) * dt)
+        if ti.static(not self.eulerian):
+            self.drift_pass(ti.static(0.5 if self.midpoint else 1.0) * dt)
 
     @ti.func
     def drift_pass(self, dt):
@@ -351,6 +360,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.rebuild_neighbors()
         self.detect_free_surface()
         self.find_confinement()
+        if self.eulerian and not self.confined:
+            raise ConfigError("isph.frame: eulerian keeps every particle where it starts, so it needs a fluid that "
+                              "fills its container (periodic sides or walls); this scene has a free surface. Use "
+                              "isph.frame: lagrangian (the default)", key="isph.frame")
         if self.confined and self.default_blend:
             self.beta = CONFINED_BLEND  # before any kernel that reads it is compiled
         if self.auto_integration:
