@@ -96,6 +96,7 @@ SLOW = {
     "test_multigrid.py::test_ppe_loop_schedules_give_bit_identical_runs[mgcg]": "81 s",
     "test_wcsph.py::test_kinematic_wall_condition_keeps_an_impact_inside_the_box": "80 s",
     "test_validation.py::test_taylor_green_coarse_short_run_keeps_its_energy": "77 s",
+    "test_eulerian_isph.py::test_the_bundled_taylor_green_in_the_eulerian_frame": "40 s",
     "test_multigrid.py::test_mgcg_and_cg_give_the_same_pressure_on_the_same_step[mixed]": "75 s",
     "test_isph.py::test_kinematic_wall_condition_holds_a_splash_off_the_walls": "73 s",
     "test_isph.py::test_density_source_corrects_compression_only": "68 s",
