@@ -395,8 +395,8 @@ class ISPH:
                                    "disorder and no shift, the summation density stays rho0. Only for a fluid that fills "
                                    "its container (a free surface is refused at the start). Taylor-Green nx 50 / 75 / "
                                    "100: L1 0.0016 / 0.0010 / 0.00065 against 0.0134 / 0.0051 / 0.0023 lagrangian; the "
-                                   "lid-driven cavity at Re 100 is worse (centreline RMS 0.0061 against 0.0027: its "
-                                   "corner singularities with a central advection term; docs/isph.md)",
+                                   "lid-driven cavity is worse (centreline RMS at Re 100 0.0061 against 0.0027, at Re 1000 "
+                                   "0.057 against 0.0068: explicit central advection, no upwinding; docs/isph.md)",
                      choices=("lagrangian", "eulerian"))
     wall_clearance: float | None = opt(0.25, "kinematic wall condition: the speed toward a wall face is cut so that no fluid particle "
                                              "comes closer than this to it (fluid starts dx/2 away); holds free-surface films, "
