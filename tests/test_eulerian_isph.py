@@ -47,6 +47,13 @@ def test_a_coarse_taylor_green_in_the_eulerian_frame():
     assert s["errors"]["l1_velocity"] < 0.03
 
 
+def test_the_continuity_density_is_refused_in_the_eulerian_frame():
+    """isph.density: continuity carries a density with each particle's motion: meaningless for a fixed particle."""
+    cfg = load_config(CONFIGS / "taylor_green_2d.yaml", ["solver=isph", "particles.dx=0.05", "isph.density=continuity"])
+    with pytest.raises(ConfigError, match="isph.density"):
+        Simulation(cfg, None, render=False, quiet=True).run()
+
+
 def test_a_free_surface_is_refused_in_the_eulerian_frame():
     """A fixed particle cannot follow a free surface: the run stops at the start with the key named."""
     cfg = load_config(CONFIGS / "dam_break_2d.yaml", ["solver=isph", "particles.dx=0.05", "isph.frame=eulerian"])

@@ -385,8 +385,8 @@ class ISPH:
                                       "moves dt/2 with v^{n+1}; second order), 'euler' (every operator at x^n, "
                                       "x^{n+1} = x^n + dt v^{n+1}; symplectic Euler, first order: at a "
                                       "constant acceleration x runs ahead by g t dt / 2) or 'auto' = midpoint in a "
-                                      "fluid that fills its container (Taylor-Green nx 50 and cavity: as euler within run-to-run "
-                                      "noise), euler with a free surface (dam_break_buchner_2d's impact compresses more "
+                                      "fluid that fills its container (Taylor-Green nx 50 and cavity: as euler "
+                                      "within run-to-run noise), euler with a free surface (dam_break_buchner_2d's impact compresses more "
                                       "with midpoint: 'unstable' in 1 of 4 starts; docs/isph.md)",
                                 choices=(AUTO, "midpoint", "euler"))
     frame: str = opt("lagrangian", "'lagrangian': the particles move with the flow; 'eulerian': they stay where they "

@@ -3,8 +3,9 @@
 One step (`isph.time_integration`; midpoint, the default in a confined fluid: x moves dt/2 with v^n first and every
 operator below acts at x^{n+1/2}; euler, the default with a free surface: at x^n) (Cummins & Rudman 1999
 projection, Shao & Lo 2003 Laplacian): neighbours and the summation density (over the lattice's kernel sum, so a
-full lattice has rho0); free-surface particles (kernel sum, cone scan, one-sided ratio: physics/free_surface.py) get a Dirichlet pressure; predictor
-v* = v + dt (g + viscous); PPE -sum_b K_ab (p_a - p_b) = s_a with rows scaled by V_a (symmetric positive definite),
+full lattice has rho0); free-surface particles (kernel sum, cone scan, one-sided ratio: physics/free_surface.py)
+get a Dirichlet pressure; predictor v* = v + dt (g + viscous) (`isph.frame: eulerian`: + the advection, and the
+particles never move); PPE -sum_b K_ab (p_a - p_b) = s_a with rows scaled by V_a (symmetric positive definite),
 walls a pairwise hydrostatic Neumann condition, source div(v*) / dt, (rho0 - rho*) / (rho0 dt^2) or their blend
 (`isph.source`; rho the summation density, or with `isph.density: continuity` each particle's density carried
 by det(I + grad u) of its step's displacement and shift: docs/isph.md), solved matrix-free (linalg/ppe.py); walls
@@ -109,6 +110,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         # isph.density: continuity: each particle's density, carried by the divergence of its motion and shift
         self.continuity = ic.density == "continuity"
         self.continuity_density = ContinuityDensity(self) if self.continuity else None
+        if self.eulerian and self.continuity:
+            raise ConfigError("isph.frame: eulerian keeps every particle where it starts, and isph.density: continuity "
+                              "carries each particle's density with its motion; use isph.density: summation (the "
+                              "default) with the Eulerian frame", key="isph.frame")
         self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
                                  ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid,
                                  ic.ppe.check_every, self.wide)
@@ -135,7 +140,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
     @ti.func
     def predict_velocity_pass(self, dt):
         """a* = g + viscous (Morris laminar, Monaghan artificial) (+ the advection -(v . grad) v with `isph.frame:
-        eulerian`); v* = v + dt a*. acc keeps a* until the correction adds the pressure part. Walls enter as in WCSPH: ghost velocity when no-slip.
+        eulerian`); v* = v + dt a*. acc keeps a* until the correction adds the pressure part. Walls enter as in
+        WCSPH: ghost velocity when no-slip.
         With `isph.step_force: explicit` also max |a*| (explicit_acc, the next step's force limit)."""
         P = self.particles
         if ti.static(self.eulerian):
