@@ -113,6 +113,10 @@ def validate(cfg: Config, source: str) -> None:
         raise ConfigError("the transport velocity moves the particles toward a uniform arrangement itself and keeps the density "
                           "by summation: it needs `wcsph.density: summation`, `shifting.enabled: false` and the "
                           "symplectic_euler integrator", source=source, key="wcsph.transport_velocity")
+    if cfg.solver == "isph" and cfg.isph.frame == "eulerian" and cfg.isph.density == "continuity":
+        raise ConfigError("isph.frame: eulerian keeps every particle where it starts, and isph.density: continuity "
+                          "carries each particle's density with its motion; use isph.density: summation (the default) "
+                          "with the Eulerian frame", source=source, key="isph.frame")
     clearance = cfg.isph.wall_clearance if cfg.solver == "isph" else cfg.wcsph.wall_clearance
     if cfg.shifting.walls == "mirror" and clearance is None:  # explicit only: auto falls back
         raise ConfigError(f"the mirror reflects the fluid in the wall faces of the kinematic wall condition, which "

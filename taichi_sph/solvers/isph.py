@@ -110,10 +110,6 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         # isph.density: continuity: each particle's density, carried by the divergence of its motion and shift
         self.continuity = ic.density == "continuity"
         self.continuity_density = ContinuityDensity(self) if self.continuity else None
-        if self.eulerian and self.continuity:
-            raise ConfigError("isph.frame: eulerian keeps every particle where it starts, and isph.density: continuity "
-                              "carries each particle's density with its motion; use isph.density: summation (the "
-                              "default) with the Eulerian frame", key="isph.frame")
         self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
                                  ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid,
                                  ic.ppe.check_every, self.wide)
