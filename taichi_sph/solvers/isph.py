@@ -376,6 +376,11 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         if self.step_loop == "device":
             self.compile_device_step()
 
+    def rebuilds_at(self, step: int) -> bool:
+        """Whether step `step` starts from positions its neighbour lists were not built on: every step after the
+        first (prepare built them), and the first too when the midpoint step drifts before it."""
+        return step > 0 or self.midpoint
+
     def free_dt(self, stats: dict) -> float:
         """The next step's dt before the run loop's cap: the CFL limit on max(|v|max, the moving walls' speed) and
         the force limit on max(|a|max, |g|) (at rest |a| ~ 0 and |v| ~ 0: gravity still bounds the step,
@@ -400,7 +405,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         dt = min(dt_free, self.dt_cap)
         if self.midpoint:
             self.first_half_drift(dt)
-        if self.step_count > 0 or self.midpoint:
+        if self.rebuilds_at(self.step_count):
             self.rebuild_neighbors()
             if self.strained_depth:
                 self.strain_dt[None] = dt

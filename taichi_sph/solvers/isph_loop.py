@@ -327,7 +327,7 @@ class ISPHDeviceLoop:
         budget = self.iteration_budget()
         start = self.step_count
         for i in range(steps):
-            rebuild = start + i > 0 or self.midpoint
+            rebuild = self.rebuilds_at(start + i)
             self.open_batch_step(i if first else i + 1, int(rebuild))
             if self.midpoint:
                 self.first_half_drift_on_clock()
@@ -348,7 +348,7 @@ class ISPHDeviceLoop:
         done, stalled = int(out[DONE_STEPS]), out[STALLED] != 0.0
         records = out[DONE_STEPS + 1:].reshape(BATCH_CAPACITY, N_RECORD)
         started = done + int(stalled)
-        self.builds += sum(1 for i in range(started) if start + i > 0 or self.midpoint)
+        self.builds += sum(1 for i in range(started) if self.rebuilds_at(start + i))
         dts = []
         for k in range(done):
             dts.append(self.record_step(records[k]))
@@ -419,7 +419,7 @@ class ISPHDeviceLoop:
         self.open_device_step()
         if self.midpoint:
             self.first_half_drift_on_clock()
-        if self.step_count > 0 or self.midpoint:
+        if self.rebuilds_at(self.step_count):
             self.rebuild_neighbors()
             self.detect_free_surface()
         self.step_head()
