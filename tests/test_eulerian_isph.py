@@ -54,11 +54,16 @@ def test_the_continuity_density_is_refused_in_the_eulerian_frame():
         load_config(CONFIGS / "taylor_green_2d.yaml", ["solver=isph", "particles.dx=0.05", "isph.density=continuity"])
 
 
-def test_a_free_surface_is_refused_in_the_eulerian_frame():
-    """A fixed particle cannot follow a free surface: the run stops at the start with the key named."""
+def test_a_free_surface_is_refused_in_the_eulerian_frame(tmp_path):
+    """A fixed particle cannot follow a free surface: the run stops at the start with the key named, and leaves no
+    run folder behind (it created the folder, so it removes it)."""
     cfg = load_config(CONFIGS / "dam_break_2d.yaml", ["solver=isph", "particles.dx=0.05", "isph.frame=eulerian"])
     with pytest.raises(ConfigError, match="isph.frame"):
         Simulation(cfg, None, render=False, quiet=True).run()
+    out = tmp_path / "refused"
+    with pytest.raises(ConfigError, match="isph.frame"):
+        Simulation(cfg, out, render=False, quiet=True).run()
+    assert not out.exists()
 
 
 def test_the_bundled_taylor_green_in_the_eulerian_frame():

@@ -145,12 +145,19 @@ def release(run_dir: Path) -> None:
 
 @contextmanager
 def held(run_dir: Path | None) -> Iterator[None]:
-    """The folder locked to this process for the duration (nothing when there is no folder)."""
+    """The folder locked to this process for the duration (nothing when there is no folder). A folder this run
+    created and left empty (a scene refused at start-up) is removed with the lock: no empty run folder behind."""
     if run_dir is None:
         yield
         return
+    created = not Path(run_dir).exists()
     acquire(run_dir)
     try:
         yield
     finally:
         release(run_dir)
+        if created:
+            try:
+                Path(run_dir).rmdir()  # only when empty
+            except OSError:
+                pass
