@@ -80,3 +80,28 @@ def max_neighbors_for(cfg: Config, support_radius: float) -> int:
     lattice = lattice_neighbour_count(cfg.dim, cfg.particles.dx, support_radius)
     return max(8, int(math.ceil(2.5 * lattice)))
 
+
+
+def lattice_shear_stiffness(w, dim: int, dx: float, reach: float, step: float = 1e-3) -> tuple[float, float]:
+    """The curvature of the kernel sum S = sum_b W(x_a - x_b) V_b of a square/cubic lattice under an area-preserving
+    shear, relative to S: (1/S) d^2 S / d eps^2 for a pure shear along the axes (x stretched by 1 + eps, y shrunk
+    by the same factor) and along the diagonals (the simple shear x += 2 eps y, whose strain is eps along the
+    diagonals). A continuum kernel sum does not change under a shear; a lattice's does, by a lattice sum that
+    swings in sign with h / dx. WCSPH's continuity density is the summation density plus a fixed offset, so this
+    curvature times the pressure is an elastic shear modulus of the particle arrangement (docs/wcsph.md, "The
+    period bias measured against the lattice's shear stiffness")."""
+    n = int(math.ceil(reach / dx)) + 2
+    offs = np.arange(-n, n + 1) * dx
+    pts = np.stack([g.ravel() for g in np.meshgrid(*([offs] * dim), indexing="ij")])
+
+    def kernel_sum(f: np.ndarray) -> float:
+        return float(np.sum(w(np.linalg.norm(f @ pts, axis=0))))
+
+    s0 = kernel_sum(np.eye(dim))
+    stretch = np.eye(dim)
+    stretch[0, 0], stretch[1, 1] = 1.0 + step, 1.0 / (1.0 + step)
+    axis = (kernel_sum(stretch) + kernel_sum(np.linalg.inv(stretch)) - 2.0 * s0) / (step * step * s0)
+    shear_p, shear_m = np.eye(dim), np.eye(dim)
+    shear_p[0, 1], shear_m[0, 1] = 2.0 * step, -2.0 * step
+    diagonal = (kernel_sum(shear_p) + kernel_sum(shear_m) - 2.0 * s0) / (step * step * s0)
+    return axis, diagonal
