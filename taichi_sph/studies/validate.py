@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import platform
+import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -33,7 +34,15 @@ from taichi_sph.studies.executor import Dispatch, Job, dispatch_from_args, run_c
 from taichi_sph.studies.sweep import parse_solvers
 from taichi_sph.studies.table import format_value, is_number
 from taichi_sph.studies.validate_checks import checks_for, quick_overrides
-from taichi_sph.studies.validate_convergence import Study, plot_convergence, studies_for, study_jobs, study_markdown, study_points
+from taichi_sph.studies.validate_convergence import (
+    Study,
+    plot_convergence,
+    studies_for,
+    study_jobs,
+    study_markdown,
+    study_order_cell,
+    study_points,
+)
 
 DEFAULT_REPORT = Path("docs/validation_report.md")
 QUICK_REPORT = "validation_report.md"  # --quick: in its runs folder, never over the validated report
@@ -154,8 +163,46 @@ def _cell(text: str) -> str:
     return str(text).replace("|", "\\|").replace("\n", " ")
 
 
+SUMMARY_COLUMNS = ("scene", "metric", "WCSPH", "ISPH", "reference / target")
+SUMMARY_BEGIN = "<!-- validation summary: begin -->"
+SUMMARY_END = "<!-- validation summary: end -->"
+
+
+def _summary_cell(row: dict | None) -> str:
+    """One solver's cell of the summary: the number and its verdict, or why there is none."""
+    if row is None:
+        return "-"
+    status = row["status"]
+    if row["ours"] == "-":
+        return status
+    mark = {"meets target": " (meets)", "misses target": " (**misses**)"}.get(status, "")
+    return f"{row['ours']}{mark}"
+
+
+def summary_table(rows: list[dict], orders: list[tuple[str, str, str, str]] = ()) -> list[str]:
+    """The report's summary, which the README's validation table is: a row per scene and metric, WCSPH and ISPH
+    side by side (the full table's rows pivoted), then one row per convergence study's observed order
+    (`orders`: scene, metric, solver, cell)."""
+    by_key: dict[tuple[str, str], dict[str, dict]] = {}
+    for r in rows:
+        by_key.setdefault((r["scene"], r["metric"]), {})[r["solver"]] = r
+    lines = [SUMMARY_BEGIN, "| " + " | ".join(SUMMARY_COLUMNS) + " |", "|" + "---|" * len(SUMMARY_COLUMNS)]
+    for (scene, metric), solvers in by_key.items():
+        reference = next((r["reference"] for r in solvers.values() if r["reference"] != "-"), "-")
+        cells = (f"`{scene}`", metric, _summary_cell(solvers.get("wcsph")), _summary_cell(solvers.get("isph")),
+                 reference)
+        lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+    studies: dict[tuple[str, str], dict[str, str]] = {}
+    for scene, metric, solver, cell in orders:
+        studies.setdefault((scene, metric), {})[solver] = cell
+    for (scene, metric), cells in studies.items():
+        lines.append("| " + " | ".join(_cell(c) for c in (f"`{scene}`", metric, cells.get("wcsph", "-"),
+                                                         cells.get("isph", "-"), "observed order; target >= 1.5")) + " |")
+    return lines + [SUMMARY_END]
+
+
 def report_markdown(rows: list[dict], figures: dict[str, str], *, quick: bool, command: str, header: str,
-                    convergence: list[str] = ()) -> str:
+                    convergence: list[str] = (), orders: list[tuple[str, str, str, str]] = ()) -> str:
     """The report: a header line (the only dated line), the table, the convergence studies, the figures."""
     lines = ["# Validation report", "",
              "<!-- written by `taichi-sph validate`; edit docs/validation.md instead (a person maintains it) -->", "",
@@ -165,6 +212,10 @@ def report_markdown(rows: list[dict], figures: dict[str, str], *, quick: bool, c
                   "scene runs and its metric reads; they are **not** the validated figures (those come from "
                   "`taichi-sph validate` without `--quick`, and docs/validation.md).", ""]
     lines += [f"Regenerate: `{command}`", ""]
+    lines += ["## Summary", "", "One row per scene and checked metric, both solvers (the README's validation table is "
+              "this one); every run's details are in the full table below.", ""]
+    lines += summary_table(rows, orders) + [""]
+    lines += ["## All runs", ""]
     lines += ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for r in rows:
         cells = (r["scene"], r["solver"], r["metric"], r["ours"], r["reference"], r["resolution"], r["wall"], r["status"])
@@ -182,12 +233,32 @@ def report_markdown(rows: list[dict], figures: dict[str, str], *, quick: bool, c
     return "\n".join(lines)
 
 
+def code_version() -> str:
+    """The code the report measured: the package version and, in a git checkout, its commit (with `+` when the
+    working tree differs from it)."""
+    from importlib.metadata import PackageNotFoundError, version
+    try:
+        text = f"taichi-sph {version('taichi-sph')}"
+    except PackageNotFoundError:
+        text = "taichi-sph (not installed)"
+    root = Path(__file__).resolve().parents[2]
+    try:
+        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
+                                text=True, timeout=10, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return text
+    return f"{text}, git {commit}{'+' if dirty else ''}" if commit else text
+
+
 def _header(quick: bool, jobs: int, seconds: float) -> str:
     load = ""
     if hasattr(os, "getloadavg"):
         load = f", load average {os.getloadavg()[0]:.1f} at the end"
-    return (f"Generated {date.today().isoformat()} {'(quick) ' if quick else ''}on {platform.machine()} "
-            f"{platform.system()} with {os.cpu_count()} cores{load}; {jobs} case(s) at once; {seconds:.0f} s in all.")
+    return (f"Generated {date.today().isoformat()} {'(quick) ' if quick else ''}by {code_version()} on "
+            f"{platform.machine()} {platform.system()} with {os.cpu_count()} cores{load}; {jobs} case(s) at once; "
+            f"{seconds:.0f} s in all.")
 
 
 # ----------------------------------------------------------------------------- the command
@@ -207,6 +278,7 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
     out = Path(out)
     figure_dir = out.with_name(out.stem + "_figures")
     convergence = convergence_sections(studies, summaries, figure_dir, out.parent)
+    orders = [study_order_cell(study, study_points(study, summaries)) for study in studies]
     figures: dict[str, str] = {}
     for scene in dict.fromkeys(c.scene for c in cases):
         done = {c.solver: runs_dir / c.name for c in cases if c.scene == scene and c.cfg is not None
@@ -224,7 +296,7 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
     header = _header(quick, dispatch.jobs, time.perf_counter() - t0)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(report_markdown(rows, figures, quick=quick, command=command, header=header,
-                                   convergence=convergence))
+                                   convergence=convergence, orders=orders))
     statuses = [r["run_status"] for r in rows if r["run_status"] != "n/a"]
     statuses += [summaries.get(j.name, {}).get("status", "failed") for study in studies
                  for j in study_jobs(study, runs_dir)]

@@ -89,6 +89,19 @@ def study_verdict(order: float | None, flagged: list, points: list[dict]) -> str
     return "meets target" if order >= ORDER_TARGET else "misses target"
 
 
+def study_order_cell(study: Study, points: list[dict]) -> tuple[str, str, str, str]:
+    """(scene, metric, solver, cell) of the report's summary: the observed order over the spacings and its verdict."""
+    _, label = study.metric() or ("-", "-")
+    done = [p for p in points if p["status"] == "ok"]
+    order = convergence_order([p["dx"] for p in done], [p["error"] for p in done])
+    flagged = non_monotone([p["dx"] for p in done], [p["error"] for p in done])
+    verdict = study_verdict(order, flagged, points)
+    mark = {"meets target": " (meets)", "misses target": " (**misses**)"}.get(verdict, f" ({verdict})")
+    spacings = f"dx {max(study.dxs):.4g} to {min(study.dxs):.4g}"
+    return (study.scene, f"{label}: order over {len(study.dxs)} spacings, {spacings}", study.solver,
+            f"{format_value(order)}{mark}" if order is not None else verdict)
+
+
 def study_markdown(study: Study, points: list[dict], figure: str | None) -> list[str]:
     """The report section of one study."""
     key, label = study.metric() or ("-", "-")
@@ -110,7 +123,7 @@ def study_markdown(study: Study, points: list[dict], figure: str | None) -> list
         lines.append("- **not monotone**: the error did not fall from dx "
                      + ", ".join(f"{a:.4g} to {b:.4g}" for a, b in flagged))
     if figure:
-        lines += ["", f"![{study.scene} {study.solver} convergence]({figure})"]
+        lines += ["", f"![{study.scene} convergence, both solvers]({figure})"]
     return lines + [""]
 
 
