@@ -4,6 +4,7 @@ the exit code of a failing scene; and the cavity metric's Ghia Re 1000 reference
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,7 +13,7 @@ import yaml
 from taichi_sph.cli.main import main
 from taichi_sph.config.loader import bundled_configs_dir, load_config
 from taichi_sph.studies.compare import SOLVERS, derive_config
-from taichi_sph.studies.validate import report_markdown, validation_scenes
+from taichi_sph.studies.validate import SUMMARY_BEGIN, SUMMARY_END, report_markdown, validation_scenes
 from taichi_sph.studies.validate_checks import CHECKS, QUICK, checks_for, quick_overrides
 from taichi_sph.validation import reference as ref
 from taichi_sph.validation.metrics.flows import CavityMetric
@@ -20,9 +21,10 @@ from taichi_sph.validation.metrics.flows import CavityMetric
 BUNDLED = bundled_configs_dir()
 
 
-def table_rows(report: str) -> list[list[str]]:
-    """The report's table rows (header and rule left out), cells stripped."""
-    lines = [ln for ln in report.splitlines() if ln.startswith("| ")]
+def table_rows(report: str, section: str = "## All runs") -> list[list[str]]:
+    """The rows of the report's table under `section` (header and rule left out), cells stripped."""
+    after = report.split(section, 1)[1].split("\n## ", 1)[0]
+    lines = [ln for ln in after.splitlines() if ln.startswith("| ")]
     return [[c.strip() for c in ln.strip("|").split(" | ")] for ln in lines[1:]]
 
 
@@ -92,6 +94,37 @@ def test_the_report_has_one_dated_line_and_rows_in_the_given_order():
     assert [r[0] for r in table_rows(text)] == ["b_scene", "a_scene"]
     assert text.count("2026") == 1 and "not** the validated figures" in text
     assert "![b_scene](f/b_scene.png)" in text
+
+
+def test_the_summary_puts_both_solvers_side_by_side_with_their_verdicts():
+    """The summary pivots the full table: one row per scene and metric, WCSPH and ISPH cells with the verdict, an
+    unstable run's status instead of a number, and a row per convergence study's order."""
+    def row(solver, ours, status):
+        return dict(scene="s", solver=solver, metric="m", ours=ours, reference="ref; target <= 0.04",
+                    resolution="dx 0.1", wall="1.0", status=status)
+    rows = [row("wcsph", "0.039", "meets target"), row("isph", "0.041", "misses target"),
+            dict(row("wcsph", "-", "unstable: energy_growth at t = 0.64"), metric="n")]
+    text = report_markdown(rows, {}, quick=False, command="taichi-sph validate", header="Generated 2026-01-01",
+                           orders=[("s", "L1: order", "wcsph", "2.19 (meets)"), ("s", "L1: order", "isph", "1.56 (meets)")])
+    assert table_rows(text, "## Summary") == [
+        ["`s`", "m", "0.039 (meets)", "0.041 (**misses**)", "ref; target <= 0.04"],
+        ["`s`", "n", "unstable: energy_growth at t = 0.64", "-", "ref; target <= 0.04"],
+        ["`s`", "L1: order", "2.19 (meets)", "1.56 (meets)", "observed order; target >= 1.5"]]
+    assert len(table_rows(text)) == 3  # the full table keeps every row
+
+
+def test_the_readme_validation_table_is_the_reports_summary():
+    """Issue 26: the README's validation table is the one `taichi-sph validate` writes (docs/validation_report.md,
+    between the summary markers): copy it over after regenerating the report."""
+    root = Path(__file__).resolve().parents[1]
+
+    def block(text: str) -> str:
+        assert SUMMARY_BEGIN in text and SUMMARY_END in text
+        return text.split(SUMMARY_BEGIN, 1)[1].split(SUMMARY_END, 1)[0].strip()
+
+    report = block((root / "docs" / "validation_report.md").read_text())
+    assert report.count("\n") > 10
+    assert block((root / "README.md").read_text()) == report
 
 
 def test_quick_run_of_a_tiny_scene_writes_the_table_with_numbers(tmp_path, capsys):

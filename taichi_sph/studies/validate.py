@@ -30,7 +30,7 @@ from taichi_sph.config.loader import bundled_configs_dir, load_config, load_raw
 from taichi_sph.config.schema import Config
 from taichi_sph.errors import SPHError, UsageError
 from taichi_sph.studies.compare import SOLVERS, batch_exit_code, derive_config
-from taichi_sph.studies.executor import Dispatch, Job, dispatch_from_args, run_cases
+from taichi_sph.studies.executor import Dispatch, Job, dispatch_from_args, is_finished, run_cases
 from taichi_sph.studies.sweep import parse_solvers
 from taichi_sph.studies.table import format_value, is_number
 from taichi_sph.studies.validate_checks import checks_for, quick_overrides
@@ -252,12 +252,14 @@ def code_version() -> str:
     return f"{text}, git {commit}{'+' if dirty else ''}" if commit else text
 
 
-def _header(quick: bool, jobs: int, seconds: float) -> str:
+def _header(quick: bool, jobs: int, seconds: float, reused: int = 0, cases: int = 0) -> str:
     load = ""
     if hasattr(os, "getloadavg"):
         load = f", load average {os.getloadavg()[0]:.1f} at the end"
+    run = (f"{cases - reused} of {cases} case(s) run now, {reused} reused from their finished run folders (--resume)"
+           if reused else f"{jobs} case(s) at once")
     return (f"Generated {date.today().isoformat()} {'(quick) ' if quick else ''}by {code_version()} on "
-            f"{platform.machine()} {platform.system()} with {os.cpu_count()} cores{load}; {jobs} case(s) at once; "
+            f"{platform.machine()} {platform.system()} with {os.cpu_count()} cores{load}; {run}; "
             f"{seconds:.0f} s in all.")
 
 
@@ -271,6 +273,7 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
     studies = studies_for(cases, quick=quick)
     jobs = [Job(c.name, c.cfg, runs_dir / c.name) for c in cases if c.cfg is not None]
     jobs += [job for study in studies for job in study_jobs(study, runs_dir)]
+    reused = sum(1 for j in jobs if dispatch.resume and is_finished(j.run_dir))
     summaries = run_cases(jobs, dispatch, label="validate") if jobs else {}
     rows = [row for c in cases for row in case_rows(c, summaries.get(c.name))]
 
@@ -293,7 +296,7 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
             continue
         if path is not None:
             figures[scene] = os.path.relpath(path, out.parent)
-    header = _header(quick, dispatch.jobs, time.perf_counter() - t0)
+    header = _header(quick, dispatch.jobs, time.perf_counter() - t0, reused, len(jobs))
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(report_markdown(rows, figures, quick=quick, command=command, header=header,
                                    convergence=convergence, orders=orders))
