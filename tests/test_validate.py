@@ -221,3 +221,22 @@ def test_the_standing_wave_period_has_issue_23s_target():
     period = next(c for c in CHECKS["standing_wave"] if c.key == "period_error")
     assert period.target == 0.005
     assert period.passes(0.0014) and not period.passes(-0.0101)
+
+
+def test_the_standing_wave_amplitude_and_energy_have_issue_23s_bands():
+    """Issue 23: amplitude after 3 periods within 3% of the viscous envelope, energy change per period between -1%
+    and +0.5% (WCSPH's 0.994 / -0.48% pass; a +2.4% gain a period does not)."""
+    amplitude = next(c for c in CHECKS["standing_wave"] if c.key == "amplitude_ratio")
+    energy = next(c for c in CHECKS["standing_wave"] if c.key == "energy_change_per_period")
+    assert amplitude.passes(0.994) and not amplitude.passes(0.963) and not amplitude.passes(1.031)
+    assert energy.passes(-0.0048) and energy.passes(0.0011) and not energy.passes(0.024) and not energy.passes(-0.011)
+    assert energy.reference_text({}).endswith("target -0.01 to 0.005")
+
+
+def test_the_re100_cavitys_final_output_target_is_isphs():
+    """Issue 26: the Re 100 cavity's final-output RMS <= 0.006 for ISPH; WCSPH's final output gets no verdict."""
+    cfg = load_config(BUNDLED / "cavity_2d.yaml")
+    final = next(c for c in checks_for(cfg, cfg.metrics[0]) if c.key == "centerline_rms_final")
+    assert final.passes(0.0028, "isph") and not final.passes(0.0095, "isph")
+    assert final.passes(0.0066, "wcsph") is None
+    assert "target <= 0.006 (ISPH)" in final.reference_text({}, "wcsph")

@@ -141,7 +141,8 @@ def case_rows(case: Case, summary: dict | None) -> list[dict]:
     if run_status not in ("ok", "unstable") or not checks:
         metric = "-" if not checks else checks[0].label
         status = _problem_status(summary) if run_status != "ok" else "no checked metric"
-        return [dict(common, metric=metric, ours="-", reference=checks[0].reference_text(errors) if checks else "-",
+        return [dict(common, metric=metric, ours="-",
+                     reference=checks[0].reference_text(errors, case.solver) if checks else "-",
                      status=status)]
     rows = []
     notes = "; ".join(str(v) for k, v in errors.items() if k.endswith("_note"))
@@ -152,10 +153,10 @@ def case_rows(case: Case, summary: dict | None) -> list[dict]:
         elif not is_number(value):
             status = "no number" + (f": {notes}" if notes else "")
         else:
-            verdict = check.passes(value)
+            verdict = check.passes(value, case.solver)
             status = "no target" if verdict is None else "meets target" if verdict else "misses target"
         rows.append(dict(common, metric=check.label, ours=format_value(value) if value is not None else "-",
-                         reference=check.reference_text(errors), status=status))
+                         reference=check.reference_text(errors, case.solver), status=status))
     return rows
 
 
