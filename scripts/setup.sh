@@ -36,5 +36,5 @@ if [ ! -x .venv/bin/python ]; then
   python3 -m venv .venv
 fi
 .venv/bin/python -m pip install -q --upgrade pip >/dev/null
-.venv/bin/python -m pip install -q -e ".[dev]"
+.venv/bin/python -m pip install -q -e ".[dev,cluster]"  # cluster: Ray, so that tests/test_executor.py runs the --cluster path
 echo "setup: ready (.venv/bin/taichi-sph)" >&2

@@ -49,6 +49,7 @@ def taichi_cpu():
 # slow` runs them, and .ci/run does, after the default set and ruff. Run one by name with `-m slow` or `-m ""`.
 # Times: CPU seconds of a cold-cache run on a loaded 2-core machine (this test's process and its children).
 SLOW = {
+    "test_executor.py::test_ray_cluster_gives_the_same_sweep_as_one_process": "~13 s: starts a local Ray cluster",
     "test_gradient_normalisation.py::test_the_bundled_tank_holds_rho0_g_d_to_a_tenth_of_a_percent": "~100-160 s: WCSPH, 6.4k fluid, 20k steps in f64",
     "test_drops.py::test_isph_defaults_keep_a_users_drop_within_two_percent": "71 s under load 6 (~25 s quiet): ISPH to t = 0.4",
     # the wave with ISPH's defaults over 3 periods (the two short unstable set-ups stay default)

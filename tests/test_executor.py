@@ -158,7 +158,7 @@ def test_bad_dispatch_options_exit_2(capsys, tmp_path, argv, fragment):
 def local_ray():
     """A Ray cluster on this machine (loopback, 2 CPUs, no dashboard), shut down after the test."""
     ray = pytest.importorskip("ray", reason="Ray is not installed (pip install taichi-sph[cluster]); "
-                                            "scripts/setup.sh leaves it out, so CI skips the Ray path")
+                                            "scripts/setup.sh installs it, so CI runs the Ray path")
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, _node_ip_address="127.0.0.1")
     try:
         yield ray
@@ -191,7 +191,7 @@ def test_ray_resources_per_arch():
 
 def test_cluster_that_cannot_be_reached_exits_2_and_writes_nothing(capsys, monkeypatch, tmp_path):
     pytest.importorskip("ray", reason="Ray is not installed (pip install taichi-sph[cluster]); "
-                                      "scripts/setup.sh leaves it out, so CI skips the Ray path")
+                                      "scripts/setup.sh installs it, so CI runs the Ray path")
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
     out = tmp_path / "study"
     code = main(["sweep", str(TANK), "--cluster", "auto", "--out", str(out)])
