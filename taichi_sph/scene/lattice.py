@@ -81,7 +81,6 @@ def max_neighbors_for(cfg: Config, support_radius: float) -> int:
     return max(8, int(math.ceil(2.5 * lattice)))
 
 
-
 def lattice_shear_stiffness(w, dim: int, dx: float, reach: float, step: float = 1e-3) -> tuple[float, float]:
     """The curvature of the kernel sum S = sum_b W(x_a - x_b) V_b of a square/cubic lattice under an area-preserving
     shear, relative to S: (1/S) d^2 S / d eps^2 for a pure shear along the axes (x stretched by 1 + eps, y shrunk

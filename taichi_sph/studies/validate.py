@@ -35,6 +35,8 @@ from taichi_sph.studies.sweep import parse_solvers
 from taichi_sph.studies.table import format_value, is_number
 from taichi_sph.studies.validate_checks import checks_for, quick_overrides
 from taichi_sph.studies.validate_convergence import (
+    ORDER_TARGET,
+    VERDICT_MARKS,
     Study,
     plot_convergence,
     studies_for,
@@ -176,8 +178,7 @@ def _summary_cell(row: dict | None) -> str:
     status = row["status"]
     if row["ours"] == "-":
         return status
-    mark = {"meets target": " (meets)", "misses target": " (**misses**)"}.get(status, "")
-    return f"{row['ours']}{mark}"
+    return f"{row['ours']}{VERDICT_MARKS.get(status, '')}"
 
 
 def summary_table(rows: list[dict], orders: list[tuple[str, str, str, str]] = ()) -> list[str]:
@@ -198,7 +199,8 @@ def summary_table(rows: list[dict], orders: list[tuple[str, str, str, str]] = ()
         studies.setdefault((scene, metric), {})[solver] = cell
     for (scene, metric), cells in studies.items():
         lines.append("| " + " | ".join(_cell(c) for c in (f"`{scene}`", metric, cells.get("wcsph", "-"),
-                                                         cells.get("isph", "-"), "observed order; target >= 1.5")) + " |")
+                                                         cells.get("isph", "-"),
+                                                         f"observed order; target >= {ORDER_TARGET:g}")) + " |")
     return lines + [SUMMARY_END]
 
 

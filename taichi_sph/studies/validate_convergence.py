@@ -89,14 +89,24 @@ def study_verdict(order: float | None, flagged: list, points: list[dict]) -> str
     return "meets target" if order >= ORDER_TARGET else "misses target"
 
 
+# how a verdict shows beside a number in the report's summary (validate.py summary_table)
+VERDICT_MARKS = {"meets target": " (meets)", "misses target": " (**misses**)"}
+
+
+def study_orders(points: list[dict]) -> tuple[float | None, list, list]:
+    """Over the finished spacings: the least-squares order, the local orders between neighbours, and the spacings
+    where the error did not fall."""
+    done = [p for p in points if p["status"] == "ok"]
+    dx, err = [p["dx"] for p in done], [p["error"] for p in done]
+    return convergence_order(dx, err), local_orders(dx, err), non_monotone(dx, err)
+
+
 def study_order_cell(study: Study, points: list[dict]) -> tuple[str, str, str, str]:
     """(scene, metric, solver, cell) of the report's summary: the observed order over the spacings and its verdict."""
     _, label = study.metric() or ("-", "-")
-    done = [p for p in points if p["status"] == "ok"]
-    order = convergence_order([p["dx"] for p in done], [p["error"] for p in done])
-    flagged = non_monotone([p["dx"] for p in done], [p["error"] for p in done])
+    order, _, flagged = study_orders(points)
     verdict = study_verdict(order, flagged, points)
-    mark = {"meets target": " (meets)", "misses target": " (**misses**)"}.get(verdict, f" ({verdict})")
+    mark = VERDICT_MARKS.get(verdict, f" ({verdict})")
     spacings = f"dx {max(study.dxs):.4g} to {min(study.dxs):.4g}"
     return (study.scene, f"{label}: order over {len(study.dxs)} spacings, {spacings}", study.solver,
             f"{format_value(order)}{mark}" if order is not None else verdict)
@@ -105,10 +115,7 @@ def study_order_cell(study: Study, points: list[dict]) -> tuple[str, str, str, s
 def study_markdown(study: Study, points: list[dict], figure: str | None) -> list[str]:
     """The report section of one study."""
     key, label = study.metric() or ("-", "-")
-    done = [p for p in points if p["status"] == "ok"]
-    order = convergence_order([p["dx"] for p in done], [p["error"] for p in done])
-    steps = local_orders([p["dx"] for p in done], [p["error"] for p in done])
-    flagged = non_monotone([p["dx"] for p in done], [p["error"] for p in done])
+    order, steps, flagged = study_orders(points)
     lines = [f"### {study.scene}, {study.solver}: {label} against dx", "",
              "| dx | fluid particles | " + label + " | wall time [s] | status |", "|---|---|---|---|---|"]
     for p in points:
