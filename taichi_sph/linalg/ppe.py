@@ -28,6 +28,7 @@ from taichi_sph.linalg.ppe_slots import (
     ITERATIONS,
     MAX_ITERATIONS,
     N_DIRICHLET,
+    N_MEAN,
     N_UNKNOWN,
     NORM_B,
     NOT_IN_PPE,
@@ -73,7 +74,8 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
     """
 
     def __init__(self, p, nsearch, n: int, max_neighbors: int, solver: str, tolerance: float, max_iterations: int,
-                 omega: float, multigrid=None, check_every: int = 4, wide=ti.f64) -> None:
+                 omega: float, multigrid=None, check_every: int = 4, wide=ti.f64,
+                 extrapolation_rows: bool = False) -> None:
         if solver not in PPE_SOLVERS:
             raise ValueError(f"unknown PPE solver '{solver}'; allowed: {', '.join(PPE_SOLVERS)}")
         self.p = p
@@ -101,7 +103,11 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
             self.z0 = ti.field(float, n)  # the V-cycle's pre-smoothed particle iterate
             self.mg = CellMultigrid(self, multigrid.smoother_omega, multigrid.coarse_scale, multigrid.coarsest_sweeps,
                                     multigrid.cell_sweeps, UNKNOWN, (RZ_NEW, SUM_Z, SUM_R))
-        self.scalars = ti.field(float, 11)
+        # extrapolation_rows: some unknowns' rows are not the flow's equation but an extrapolation (isph.walls:
+        # extrapolated): in_mean[a] = 0 keeps them out of the pure-Neumann compatibility mean and pressure level
+        self.extrapolation_rows = extrapolation_rows
+        self.in_mean = ti.field(ti.i32, n) if extrapolation_rows else None
+        self.scalars = ti.field(float, 12)
         # the solve's state on the device (slots DONE ... STARTING), in f64 where the device has it
         self.wide = wide
         self.progress, = wide_fields(wide, 9)  # a tree of its own (sph/precision.py: Vulkan's f64 packing)
@@ -124,17 +130,28 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         return self.rows.add_differences(x, a, self.diag_dirichlet[a] * x[a])
 
     @ti.func
+    def mean_weight(self, a) -> float:
+        """1 for an unknown whose row takes part in the pure-Neumann means (`in_mean`), else 0."""
+        w = 0.0
+        if self.role[a] == UNKNOWN:
+            w = 1.0
+            if ti.static(self.extrapolation_rows):
+                w = ti.cast(self.in_mean[a], float)
+        return w
+
+    @ti.func
     def rhs_row(self, a, _):
         b = 0.0
         if self.role[a] == UNKNOWN:
             b = self.rhs[a]
-        return ti.Vector([b * b, b])
+        return ti.Vector([b * b, b, self.mean_weight(a)])
 
     @ti.func
     def sum_rhs(self):
-        """|b|^2 and sum b over the unknowns, in a fixed order on the CPU (physics/reduction.py): the stopping
-        test is relative to |b|, so a sum whose order varied between runs changed where CG stopped."""
-        self.sums.add(self.rhs_row, (BB, SUM_B), False, 0.0)
+        """|b|^2 and sum b over the unknowns and the count of the rows in the means, in a fixed order on the CPU
+        (physics/reduction.py): the stopping test is relative to |b|, so a sum whose order varied between runs
+        changed where CG stopped."""
+        self.sums.add(self.rhs_row, (BB, SUM_B, N_MEAN), False, 0.0)
 
     # -- the device-side state of a solve ---------------------------------------------------------------
     @ti.func
@@ -179,7 +196,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
     def mean_free_rhs_row(self, a, mean):
         b = 0.0
         if self.role[a] == UNKNOWN:
-            b = self.rhs[a] - mean
+            b = self.rhs[a] - mean * self.mean_weight(a)
             self.rhs[a] = b
         return ti.Vector([b * b])
 
@@ -198,7 +215,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
                 self.progress[DONE] = 1.0
             elif self.scalars[N_DIRICHLET] == 0.0:
                 self.progress[PINNED] = 1.0
-        mean = self.scalars[SUM_B] / ti.max(self.scalars[N_UNKNOWN], 1.0)
+        mean = self.scalars[SUM_B] / ti.max(self.scalars[N_MEAN], 1.0)
         self.sums.add_live(self.mean_free_rhs_row, (BB,), False, mean, ti.cast(self.progress[PINNED], ti.i32) * step)
         if step:
             norm_b = ti.sqrt(ti.cast(self.scalars[BB], self.wide))
@@ -216,7 +233,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
     def pressure_row(self, a, _):
         p = 0.0
         if self.role[a] == UNKNOWN:
-            p = self.p[a]
+            p = self.p[a] * self.mean_weight(a)
         return ti.Vector([p])
 
     @ti.kernel
@@ -224,7 +241,7 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
         """Pinned systems (not trivially solved): fix the free constant, the unknowns' mean pressure becomes `level`."""
         shift_it = ti.cast(self.progress[PINNED] * (1.0 - self.progress[TRIVIAL]), ti.i32) * self.step_open()
         self.sums.add_live(self.pressure_row, (SUM_P,), False, 0.0, shift_it)
-        shift = level - self.scalars[SUM_P] / ti.max(self.scalars[N_UNKNOWN], 1.0)
+        shift = level - self.scalars[SUM_P] / ti.max(self.scalars[N_MEAN], 1.0)
         for a in range(self.n):
             if shift_it and self.role[a] == UNKNOWN:
                 self.p[a] += shift

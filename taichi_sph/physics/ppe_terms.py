@@ -76,6 +76,15 @@ def neumann_wall_pressure_difference(rho: float, body_acc, r_aw) -> float:
 
 
 @ti.func
+def wall_extrapolation_offset(rho: float, body_acc, r_wf) -> float:
+    """p_w - p_f for a wall particle w and a fluid particle f in hydrostatic balance, r_wf = x_w - x_f:
+    rho (g - a_w) . r_wf (Adami et al. 2012's offset, pair by pair). The extrapolation row of a wall particle
+    (`isph.walls: extrapolated`) is sum_f K_wf (p_w - p_f - rho (g - a_w) . r_wf) = 0: p_w is the K-weighted
+    mean of its fluid neighbours' pressure continued hydrostatically to it, exact for a linear pressure."""
+    return rho * body_acc.dot(r_wf)
+
+
+@ti.func
 def free_surface_pressure(rho0: float, depth: float, grad_c, body_acc, acc, tension: ti.template()) -> float:
     """Dirichlet value at a free-surface particle `depth` below the surface (dx/2 on a lattice).
 

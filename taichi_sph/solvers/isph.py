@@ -6,10 +6,12 @@ projection, Shao & Lo 2003 Laplacian): neighbours and the summation density (ove
 full lattice has rho0); free-surface particles (kernel sum, cone scan, one-sided ratio: physics/free_surface.py)
 get a Dirichlet pressure; predictor v* = v + dt (g + viscous) (`isph.frame: eulerian`: + the advection, and the
 particles never move); PPE -sum_b K_ab (p_a - p_b) = s_a with rows scaled by V_a (symmetric positive definite),
-walls a pairwise hydrostatic Neumann condition, source div(v*) / dt, (rho0 - rho*) / (rho0 dt^2) or their blend
+walls (`isph.walls`) unknowns whose rows extrapolate the fluid's pressure hydrostatically (the system stays
+symmetric; the correction pushes with the p_w solved for) or a pairwise hydrostatic Neumann condition (then the
+correction pushes with the Adami pressure), source div(v*) / dt, (rho0 - rho*) / (rho0 dt^2) or their blend
 (`isph.source`; rho the summation density, or with `isph.density: continuity` each particle's density carried
-by det(I + grad u) of its step's displacement and shift: docs/isph.md), solved matrix-free (linalg/ppe.py); walls
-get the Adami pressure; v = v* - dt grad p / rho0 with the kernel-gradient-corrected difference gradient;
+by det(I + grad u) of its step's displacement and shift: docs/isph.md), solved matrix-free (linalg/ppe.py);
+v = v* - dt grad p / rho0 with the kernel-gradient-corrected difference gradient;
 x += dt/2 v (midpoint; euler: dt v); kinematic wall condition; shifting (solvers/shifting.py).
 Invariants: a fluid at rest stays at rest (hydrostatic walls, a gradient exact for a linear pressure at any level);
 with no free surface the pressure has mean `fluid.background_pressure`. The step in detail, and what was measured
@@ -40,6 +42,7 @@ from taichi_sph.physics.ppe_terms import (
     ppe_source,
     shao_lo_laplacian_weight,
     velocity_divergence_term,
+    wall_extrapolation_offset,
 )
 from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays
 from taichi_sph.scene.lattice import lattice_gradient_sum, lattice_kernel_sum
@@ -58,7 +61,8 @@ FREE_SURFACE_BLEND, CONFINED_BLEND = 1.0, 0.1
 
 @ti.data_oriented
 class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
-    """Projection ISPH: Shao & Lo Laplacian, matrix-free Jacobi / PCG, free-surface Dirichlet, Neumann walls."""
+    """Projection ISPH: Shao & Lo Laplacian, matrix-free Jacobi / PCG, free-surface Dirichlet, walls extrapolated
+    in the PPE (or Neumann)."""
 
     name = "isph"
     # beta: set by prepare from the scene's initial state (find_confinement), as the kernels compiled with it
@@ -81,6 +85,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.auto_integration = ic.time_integration == AUTO and not self.eulerian
         self.midpoint = ic.time_integration == "midpoint" and not self.eulerian  # (eulerian: nothing drifts)
         self.surface_threshold = ic.free_surface_threshold
+        self.extrapolated_walls = ic.walls == "extrapolated"
+        # extrapolated walls in a fluid that fills its container: the solved p_w of every wall, also below p_b
+        # (set by prepare, before any kernel that reads it is compiled)
+        self.wall_tension = False
         self.one_sided = ic.one_sided_ratio is not None
         self.one_sided_ratio = ic.one_sided_ratio if self.one_sided else 0.0
         self.surface_depth = 0.5 * self.dx
@@ -112,7 +120,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.continuity_density = ContinuityDensity(self) if self.continuity else None
         self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
                                  ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid,
-                                 ic.ppe.check_every, self.wide)
+                                 ic.ppe.check_every, self.wide, extrapolation_rows=self.extrapolated_walls)
         # isph.frame eulerian: the particles stay on their lattice, nothing to shift
         self.shifting = (ParticleShifting(self, cfg.shifting_coefficient) if self.features.shifting and not self.eulerian
                          else None)
@@ -203,7 +211,12 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 E.scalars[s] = 0.0
         E.rows.plan(E.role, UNKNOWN)  # (a skipped step plans the same rows again: role and counts are unchanged)
         for a in range(self.n):
-            if self.live() and E.role[a] == UNKNOWN:
+            is_wall = False
+            if ti.static(self.extrapolated_walls):
+                is_wall = P.kind[a] == WALL
+                if self.live() and E.role[a] == UNKNOWN and is_wall:
+                    self.assemble_wall_row(a)
+            if self.live() and E.role[a] == UNKNOWN and not is_wall:
                 xa = P.x[a]
                 vol_a = P.mass[a] / self.rho0
                 row = ti.Struct(va=P.v[a], vol_a=vol_a, body=self.body_force(xa), dt=dt, k=0, div_v=0.0, diag=0.0,
@@ -236,10 +249,53 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                     E.diag[a] = diag
                     E.diag_dirichlet[a] = diag_dirichlet
                     E.rhs[a] = rhs
+                    if ti.static(self.extrapolated_walls):
+                        E.in_mean[a] = 1
                     ti.atomic_add(E.scalars[N_UNKNOWN], 1.0)
                 else:  # no fluid neighbour, so no other row refers to it: keep its pressure
                     E.role[a] = DIRICHLET
         E.sum_rhs()
+
+    @ti.func
+    def assemble_wall_row(self, a):
+        """`isph.walls: extrapolated`: wall particle a's row, sum_f K_af (p_a - p_f) = sum_f K_af rho0 (g - a_w) . r_af
+        over its fluid neighbours f (the wall pressure extrapolated from the fluid's with the hydrostatic offset,
+        exact for a linear pressure; K the fluid rows' Shao & Lo weight, so that the system stays symmetric)."""
+        P = self.particles
+        E = self.ppe
+        row = ti.Struct(vol_a=P.mass[a] / self.rho0, body=self.body_force(P.x[a]), k=0, diag=0.0, diag_dirichlet=0.0,
+                        rhs=0.0)
+        self.nsearch.for_each_neighbor(a, P.x, self.ppe_wall_row_pair, row)
+        if row.diag > 0.0:
+            E.diag[a] = row.diag
+            E.diag_dirichlet[a] = row.diag_dirichlet
+            E.rhs[a] = row.rhs
+            E.in_mean[a] = 0
+            ti.atomic_add(E.scalars[N_UNKNOWN], 1.0)
+        else:  # a dry wall: no fluid row refers to it
+            E.role[a] = DIRICHLET
+            P.p[a] = self.p_background
+
+    @ti.func
+    def ppe_wall_row_pair(self, a, b, r_ab, row: ti.template()):
+        """Fluid neighbour b's entry in wall particle a's extrapolation row (`assemble_wall_row`)."""
+        P = self.particles
+        E = self.ppe
+        c_ab = 0.0
+        if P.kind[b] == FLUID:
+            r2 = r_ab.dot(r_ab)
+            grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
+            k_ab = self.lap_norm * row.vol_a * shao_lo_laplacian_weight(P.mass[b], self.rho0, self.rho0, r_ab, r2,
+                                                                        self.eta2, grad_w)
+            row.diag += k_ab
+            row.rhs += k_ab * wall_extrapolation_offset(self.rho0, row.body, r_ab)
+            if E.role[b] == UNKNOWN:
+                c_ab = k_ab
+            else:
+                row.diag_dirichlet += k_ab
+                row.rhs += k_ab * P.p[b]
+        E.rows.set(a, row.k, b, c_ab)
+        row.k += 1
 
     @ti.func
     def ppe_row_pair(self, a, b, r_ab, row: ti.template()):
@@ -256,7 +312,11 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         v_b = P.v[b]
         if P.kind[b] == WALL:
             v_b += row.dt * row.body
-            row.rhs -= k_ab * neumann_wall_pressure_difference(self.rho0, row.body, r_ab)
+            if ti.static(self.extrapolated_walls):
+                c_ab = k_ab
+                row.diag += k_ab
+            else:
+                row.rhs -= k_ab * neumann_wall_pressure_difference(self.rho0, row.body, r_ab)
         elif E.role[b] == UNKNOWN:
             c_ab = k_ab
             row.diag += k_ab
@@ -286,6 +346,23 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 P.p[a] = ti.max(P.p[a], self.p_background)
                 P.rho[a] = self.rho0
                 P.mass[a] = self.wall_mass
+
+    def solved_wall_pressure(self) -> None:
+        """After the solve: Adami's extrapolation (`isph.walls: neumann`), or the p_w the solve found
+        (`extrapolated`), floored at the ambient pressure."""
+        if self.extrapolated_walls:
+            if not self.wall_tension:
+                self.floor_wall_pressure()
+        else:
+            self.wall_pressure()
+
+    @ti.kernel
+    def floor_wall_pressure(self):
+        """p_w >= p_b (see `incompressible_walls`)."""
+        P = self.particles
+        for a in range(self.n):
+            if self.live() and P.kind[a] == WALL:
+                P.p[a] = ti.max(P.p[a], self.p_background)
 
     def wall_pressure(self) -> None:
         """Adami et al. (2012) p_w = sum_f (p_f + rho_f (g - a_w) . r_wf) W_wf / sum_f W_wf (and the no-slip
@@ -351,7 +428,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
     def pressure_gradient_pair(self, a, b, r_ab, sums: ti.template()):
         """Pair (a, b)'s share of sum_b V_b (p_b - p_a) grad_a W_ab and of M_a, over fluid and wetted walls."""
         P = self.particles
-        if P.kind[b] == FLUID or P.p[b] > self.p_background:
+        wetted = P.kind[b] == FLUID or P.p[b] > self.p_background
+        if ti.static(self.wall_tension):
+            wetted = True  # (a wall next to fluid is a PPE unknown; in a confined fluid it holds tension too)
+        if wetted:
             grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
             dp, dm = pressure_difference_pair_terms(P.mass[b] / self.rho0, sums.p_a, P.p[b], r_ab, grad_w)
             sums.sum_dp += dp
@@ -370,6 +450,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
             self.beta = CONFINED_BLEND  # before any kernel that reads it is compiled
         if self.auto_integration:
             self.midpoint = self.confined
+        self.wall_tension = self.extrapolated_walls and self.confined
         self.floor_surface_band_density()
         if self.features.walls:
             self.wall_pressure()
@@ -416,7 +497,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.assemble_ppe(dt, dt_free)
         self.solve_pressure()
         if self.features.walls:
-            self.wall_pressure()
+            self.solved_wall_pressure()
         self.correct_and_move(dt)
         if self.shifting is not None:
             self.shifting.compute(dt, s["max_speed"])

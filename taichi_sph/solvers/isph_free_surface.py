@@ -18,7 +18,7 @@ from taichi_sph.physics.free_surface import (
 )
 from taichi_sph.physics.momentum import renormalised_velocity_gradient
 from taichi_sph.physics.ppe_terms import free_surface_pressure
-from taichi_sph.scene.bodies import FLUID
+from taichi_sph.scene.bodies import FLUID, WALL
 
 
 @ti.data_oriented
@@ -113,6 +113,9 @@ class FreeSurfaceDetection:
                     if candidate:  # (physics/free_surface.py) below it: floored at rho0
                         rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
                     P.rho[a] = rho
+                if ti.static(self.extrapolated_walls):
+                    if P.kind[a] == WALL:
+                        role = UNKNOWN  # (a dry wall, no fluid neighbour: DIRICHLET in the assembly)
                 E.role[a] = role
 
     @ti.func

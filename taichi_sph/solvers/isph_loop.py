@@ -405,7 +405,7 @@ class ISPHDeviceLoop:
     def step_tail(self) -> None:
         """The step's passes after the solve: wall pressure, correction and move (t += dt), shifting."""
         if self.features.walls:
-            self.wall_pressure()
+            self.solved_wall_pressure()
         self.correct_and_move_on_clock()
         if self.shifting is not None:
             self.shift_on_clock()

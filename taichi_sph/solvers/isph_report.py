@@ -29,7 +29,9 @@ def ppe_summary(solver) -> dict:
                                 else "detected every step"),
                "multigrid_levels": ppe.mg.describe() if ppe.mg else None,
                "loop_schedule": {None: "undecided", True: "serial", False: "parallel"}[ppe.serial],
-               "walls": "Neumann (pairwise hydrostatic) in the PPE, Adami pressure >= p_b in the gradient",
+               "walls": ("unknowns of the PPE (hydrostatic extrapolation rows), the solved pressure >= p_b in the gradient"
+                         if solver.extrapolated_walls else
+                         "Neumann (pairwise hydrostatic) in the PPE, Adami pressure >= p_b in the gradient"),
                "pressure_gradient": "kernel-gradient-corrected difference form"}
     warnings = []
     if bad:
