@@ -222,7 +222,7 @@ def test_hydrostatic_tank_at_rest():
 
 @pytest.mark.parametrize("open_top", [False, True])
 def test_walls_are_unknowns_that_extrapolate_the_hydrostatic_pressure(open_top):
-    """`isph.walls: extrapolated` (the default): every wall particle with a fluid neighbour is an unknown of the PPE
+    """`isph.walls: extrapolated` (an option): every wall particle with a fluid neighbour is an unknown of the PPE
     and its solved pressure is the hydrostatic one at its own position (its row is exact for a linear pressure),
     also in a closed box (pure Neumann: the fluid rows take the compatibility correction, the walls' rows none);
     a wall with no fluid in reach is not in the system and keeps p_b. The tank at rest after one step: the walls'
@@ -230,7 +230,7 @@ def test_walls_are_unknowns_that_extrapolate_the_hydrostatic_pressure(open_top):
     6e-6 of rho0 g H), floored at p_b above the surface of an open tank."""
     cfg = tank_cfg(bodies=[{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.5, 0.5]},
                            {"type": "wall_box", "lo": [0.0, 0.0], "hi": [0.5, 0.5 if not open_top else 0.6],
-                            "layers": 4, "open_top": open_top}])
+                            "layers": 4, "open_top": open_top}], isph={"walls": "extrapolated"})
     solver = ISPHSolver(cfg, build_particles(cfg))
     solver.prepare()
     solver.step()
@@ -256,7 +256,7 @@ def test_walls_are_unknowns_that_extrapolate_the_hydrostatic_pressure(open_top):
 
 
 def test_the_neumann_wall_model_keeps_the_tank_at_rest():
-    """`isph.walls: neumann` (pairwise hydrostatic walls in the PPE, Adami's mean in the correction) stays a choice:
+    """`isph.walls: neumann` (the default: pairwise hydrostatic walls in the PPE, Adami's mean in the correction),
     the tank at rest as in the test above (0.5% of the pressure, 0.5% of sqrt(gH))."""
     res = Simulation(tank_cfg(isph={"walls": "neumann"}, time={"t_end": 0.2}), None, render=False, quiet=True).run()
     s = res.summary
