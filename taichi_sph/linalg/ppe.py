@@ -73,9 +73,10 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
     starting from its current values (warm start).
     """
 
+    transient_state = ("row_kind",)  # the particles' own kind field (`flow_rows`), saved with them, not twice
+
     def __init__(self, p, nsearch, n: int, max_neighbors: int, solver: str, tolerance: float, max_iterations: int,
-                 omega: float, multigrid=None, check_every: int = 4, wide=ti.f64,
-                 extrapolation_rows: bool = False) -> None:
+                 omega: float, multigrid=None, check_every: int = 4, wide=ti.f64, flow_rows=None) -> None:
         if solver not in PPE_SOLVERS:
             raise ValueError(f"unknown PPE solver '{solver}'; allowed: {', '.join(PPE_SOLVERS)}")
         self.p = p
@@ -103,10 +104,10 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
             self.z0 = ti.field(float, n)  # the V-cycle's pre-smoothed particle iterate
             self.mg = CellMultigrid(self, multigrid.smoother_omega, multigrid.coarse_scale, multigrid.coarsest_sweeps,
                                     multigrid.cell_sweeps, UNKNOWN, (RZ_NEW, SUM_Z, SUM_R))
-        # extrapolation_rows: some unknowns' rows are not the flow's equation but an extrapolation (isph.walls:
-        # extrapolated): in_mean[a] = 0 keeps them out of the pure-Neumann compatibility mean and pressure level
-        self.extrapolation_rows = extrapolation_rows
-        self.in_mean = ti.field(ti.i32, n) if extrapolation_rows else None
+        # flow_rows (kind field, kind): only the unknowns of that kind hold the flow's equation; the others' rows are
+        # extrapolations (isph.walls: extrapolated), kept out of the pure-Neumann compatibility mean and pressure level
+        self.extrapolation_rows = flow_rows is not None
+        self.row_kind, self.flow_kind = flow_rows if flow_rows is not None else (None, 0)
         self.scalars = ti.field(float, 12)
         # the solve's state on the device (slots DONE ... STARTING), in f64 where the device has it
         self.wide = wide
@@ -131,12 +132,13 @@ class MatrixFreePPE(JacobiCG, MultigridCG):
 
     @ti.func
     def mean_weight(self, a) -> float:
-        """1 for an unknown whose row takes part in the pure-Neumann means (`in_mean`), else 0."""
+        """1 for an unknown whose row takes part in the pure-Neumann means (of the flow's kind: `flow_rows`), else 0."""
         w = 0.0
         if self.role[a] == UNKNOWN:
             w = 1.0
             if ti.static(self.extrapolation_rows):
-                w = ti.cast(self.in_mean[a], float)
+                if self.row_kind[a] != self.flow_kind:
+                    w = 0.0
         return w
 
     @ti.func

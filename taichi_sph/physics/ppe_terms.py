@@ -67,21 +67,14 @@ def capped_density_error(rho: float, rho0: float, max_error: float) -> float:
 
 
 @ti.func
-def neumann_wall_pressure_difference(rho: float, body_acc, r_aw) -> float:
-    """p_a - p_w for a fluid particle a and a wall particle w when the wall takes the pressure of a fluid
-    in hydrostatic balance, pair by pair (the pairwise form of Adami et al. 2012):
-    p_w = p_a + rho (g - a_w) . (x_w - x_a), so p_a - p_w = rho (g - a_w) . r_aw, r_aw = x_a - x_w.
-    It does not depend on p: the wall is a Neumann condition dp/dn = rho (g - a_w) . n."""
-    return rho * body_acc.dot(r_aw)
+def hydrostatic_pressure_difference(rho: float, body_acc, r_ab) -> float:
+    """p_a - p_b between two points of a fluid in hydrostatic balance, r_ab = x_a - x_b: rho (g - a_w) . r_ab.
 
-
-@ti.func
-def wall_extrapolation_offset(rho: float, body_acc, r_wf) -> float:
-    """p_w - p_f for a wall particle w and a fluid particle f in hydrostatic balance, r_wf = x_w - x_f:
-    rho (g - a_w) . r_wf (Adami et al. 2012's offset, pair by pair). The extrapolation row of a wall particle
-    (`isph.walls: extrapolated`) is sum_f K_wf (p_w - p_f - rho (g - a_w) . r_wf) = 0: p_w is the K-weighted
-    mean of its fluid neighbours' pressure continued hydrostatically to it, exact for a linear pressure."""
-    return rho * body_acc.dot(r_wf)
+    The wall terms of the PPE, pair by pair (Adami et al. 2012's offset): with `isph.walls: neumann` a fluid row's
+    wall pair (a fluid, b wall) is this difference, a Neumann condition dp/dn = rho (g - a_w) . n with no p in it;
+    with `extrapolated` a wall row (a wall, b fluid) is sum_b K_ab (p_a - p_b - this) = 0, p_a the K-weighted mean
+    of its fluid neighbours' pressure continued hydrostatically to it, exact for a linear pressure."""
+    return rho * body_acc.dot(r_ab)
 
 
 @ti.func

@@ -38,11 +38,10 @@ from taichi_sph.physics.momentum import (
 from taichi_sph.physics.ppe_terms import (
     capped_density_error,
     corrected_velocity_divergence,
-    neumann_wall_pressure_difference,
+    hydrostatic_pressure_difference,
     ppe_source,
     shao_lo_laplacian_weight,
     velocity_divergence_term,
-    wall_extrapolation_offset,
 )
 from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays
 from taichi_sph.scene.lattice import lattice_gradient_sum, lattice_kernel_sum
@@ -120,7 +119,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.continuity_density = ContinuityDensity(self) if self.continuity else None
         self.ppe = MatrixFreePPE(P.p, self.nsearch, self.n, self.max_neighbors, ic.ppe.solver_for(arrays.n_fluid),
                                  ic.ppe.tolerance, ic.ppe.max_iterations, ic.ppe.omega, ic.ppe.multigrid,
-                                 ic.ppe.check_every, self.wide, extrapolation_rows=self.extrapolated_walls)
+                                 ic.ppe.check_every, self.wide,
+                                 flow_rows=(P.kind, FLUID) if self.extrapolated_walls else None)
         # isph.frame eulerian: the particles stay on their lattice, nothing to shift
         self.shifting = (ParticleShifting(self, cfg.shifting_coefficient) if self.features.shifting and not self.eulerian
                          else None)
@@ -249,12 +249,20 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                     E.diag[a] = diag
                     E.diag_dirichlet[a] = diag_dirichlet
                     E.rhs[a] = rhs
-                    if ti.static(self.extrapolated_walls):
-                        E.in_mean[a] = 1
                     ti.atomic_add(E.scalars[N_UNKNOWN], 1.0)
                 else:  # no fluid neighbour, so no other row refers to it: keep its pressure
                     E.role[a] = DIRICHLET
         E.sum_rhs()
+
+    @ti.func
+    def laplacian_pair(self, vol_a: float, b, r_ab):
+        """(K_ab with the row's V_a and the lattice's normalisation, grad_a W_ab): pair (a, b)'s Shao & Lo coefficient,
+        the same number in a's row and in b's (the system's symmetry), and the kernel gradient it came from."""
+        r2 = r_ab.dot(r_ab)
+        grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
+        k_ab = self.lap_norm * vol_a * shao_lo_laplacian_weight(self.particles.mass[b], self.rho0, self.rho0, r_ab, r2,
+                                                                self.eta2, grad_w)
+        return k_ab, grad_w
 
     @ti.func
     def assemble_wall_row(self, a):
@@ -270,7 +278,6 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
             E.diag[a] = row.diag
             E.diag_dirichlet[a] = row.diag_dirichlet
             E.rhs[a] = row.rhs
-            E.in_mean[a] = 0
             ti.atomic_add(E.scalars[N_UNKNOWN], 1.0)
         else:  # a dry wall: no fluid row refers to it
             E.role[a] = DIRICHLET
@@ -283,12 +290,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         E = self.ppe
         c_ab = 0.0
         if P.kind[b] == FLUID:
-            r2 = r_ab.dot(r_ab)
-            grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
-            k_ab = self.lap_norm * row.vol_a * shao_lo_laplacian_weight(P.mass[b], self.rho0, self.rho0, r_ab, r2,
-                                                                        self.eta2, grad_w)
+            k_ab, _ = self.laplacian_pair(row.vol_a, b, r_ab)
             row.diag += k_ab
-            row.rhs += k_ab * wall_extrapolation_offset(self.rho0, row.body, r_ab)
+            row.rhs += k_ab * hydrostatic_pressure_difference(self.rho0, row.body, r_ab)
             if E.role[b] == UNKNOWN:
                 c_ab = k_ab
             else:
@@ -304,10 +308,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         and its share of div(v*) and of the first moment sum_b K_ab r_ab."""
         P = self.particles
         E = self.ppe
-        r2 = r_ab.dot(r_ab)
-        grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
-        k_ab = self.lap_norm * row.vol_a * shao_lo_laplacian_weight(P.mass[b], self.rho0, self.rho0, r_ab, r2,
-                                                                    self.eta2, grad_w)
+        k_ab, grad_w = self.laplacian_pair(row.vol_a, b, r_ab)
         c_ab = 0.0
         v_b = P.v[b]
         if P.kind[b] == WALL:
@@ -316,7 +317,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 c_ab = k_ab
                 row.diag += k_ab
             else:
-                row.rhs -= k_ab * neumann_wall_pressure_difference(self.rho0, row.body, r_ab)
+                row.rhs -= k_ab * hydrostatic_pressure_difference(self.rho0, row.body, r_ab)
         elif E.role[b] == UNKNOWN:
             c_ab = k_ab
             row.diag += k_ab
