@@ -73,6 +73,15 @@ def lattice_gradient_sum(cfg: Config, dw_dr, eta2: float = 0.0) -> float:
     return float(np.sum(-r * dw_dr(r) * r * r / (r * r + eta2)) * dx ** cfg.dim / cfg.dim)
 
 
+def lattice_laplacian_weight_sum(cfg: Config, dw_dr, eta2: float) -> float:
+    """sum_b V_b (-r dW/dr) / (r^2 + eta^2) over a full lattice (b != a): the Shao & Lo diagonal sum_b K_ab of a
+    particle inside the lattice is 2 V_a / rho0 times this (K_ab = -2 V_b / rho0 (r dW/dr) / (r^2 + eta^2))."""
+    dx = cfg.particles.dx
+    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h)
+    r = r[r > 0]
+    return float(np.sum(-r * dw_dr(r) / (r * r + eta2)) * dx ** cfg.dim)
+
+
 def max_neighbors_for(cfg: Config, support_radius: float) -> int:
     """Neighbour-list capacity: the configured value, or 2.5x the lattice count within the support."""
     if cfg.particles.max_neighbors != AUTO:

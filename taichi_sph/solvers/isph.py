@@ -44,7 +44,7 @@ from taichi_sph.physics.ppe_terms import (
     velocity_divergence_term,
 )
 from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays
-from taichi_sph.scene.lattice import lattice_gradient_sum, lattice_kernel_sum
+from taichi_sph.scene.lattice import lattice_gradient_sum, lattice_kernel_sum, lattice_laplacian_weight_sum
 from taichi_sph.solvers.base import SolverBase
 from taichi_sph.solvers.isph_continuity import ContinuityDensity
 from taichi_sph.solvers.isph_free_surface import FreeSurfaceDetection
@@ -53,6 +53,11 @@ from taichi_sph.solvers.isph_report import ppe_summary
 from taichi_sph.solvers.shifting import ParticleShifting
 
 # source weight beta in s = (1 - beta) s_divergence + beta s_density, per `isph.source`
+# isph.walls extrapolated: the least diagonal sum_f K_wf a wall row may have, as a share of an interior fluid row's.
+# A wall whose fluid neighbours all lie near the edge of its support has a diagonal down to ~1e-12 of the fluid's:
+# as an unknown it made the system (and the multigrid preconditioner, eigenvalue ratio 3.5e-12) near singular.
+# Below the share the wall is a Neumann pair in its fluid neighbours' rows, as with `neumann`.
+WALL_ROW_MIN_SHARE = 0.01
 SOURCE_WEIGHT = {"divergence": lambda blend: 0.0, "density_invariance": lambda blend: 1.0, "blend": lambda blend: blend}
 # isph.blend's default with a free surface and in a confined fluid (schema text; docs/isph.md)
 FREE_SURFACE_BLEND, CONFINED_BLEND = 1.0, 0.1
@@ -96,6 +101,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.lattice_sum = lattice_kernel_sum(cfg, self.kernel.w_np)
         self.grad_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np)
         self.lap_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np, self.eta2)
+        # isph.walls extrapolated: a wall's row enters the system only where its fluid neighbours' sum_f K_wf is at
+        # least WALL_ROW_MIN_SHARE of an interior fluid row's diagonal (`wet_wall_rows`)
+        self.wall_row_min_diag = WALL_ROW_MIN_SHARE * self.lap_norm * self.lattice_volume * 2.0 / self.rho0 * \
+            lattice_laplacian_weight_sum(cfg, self.kernel.dw_dr_np, self.eta2)
         self.g_norm = float(np.linalg.norm(cfg.gravity_vector))
         # moving walls bound the step as the fluid does: a lid-driven cavity starts at rest, and the viscous limit
         # alone let the lid move 1.25 dx a step (Re 1000, unstable at t = 0.06 s)
@@ -274,14 +283,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         row = ti.Struct(vol_a=P.mass[a] / self.rho0, body=self.body_force(P.x[a]), k=0, diag=0.0, diag_dirichlet=0.0,
                         rhs=0.0)
         self.nsearch.for_each_neighbor(a, P.x, self.ppe_wall_row_pair, row)
-        if row.diag > 0.0:
-            E.diag[a] = row.diag
-            E.diag_dirichlet[a] = row.diag_dirichlet
-            E.rhs[a] = row.rhs
-            ti.atomic_add(E.scalars[N_UNKNOWN], 1.0)
-        else:  # a dry wall: no fluid row refers to it
-            E.role[a] = DIRICHLET
-            P.p[a] = self.p_background
+        E.diag[a] = row.diag  # (> 0: `wet_wall_row` let it in)
+        E.diag_dirichlet[a] = row.diag_dirichlet
+        E.rhs[a] = row.rhs
+        ti.atomic_add(E.scalars[N_UNKNOWN], 1.0)
 
     @ti.func
     def ppe_wall_row_pair(self, a, b, r_ab, row: ti.template()):
@@ -302,6 +307,37 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         row.k += 1
 
     @ti.func
+    def wet_wall_row(self, a) -> bool:
+        """`isph.walls: extrapolated`: does wall particle a get a row (be an unknown)? sum_f K_af over its fluid
+        neighbours >= WALL_ROW_MIN_SHARE of an interior row's diagonal; a drier wall is a Neumann pair in its fluid
+        neighbours' rows and takes its pressure after the solve (`extrapolate_dry_walls`)."""
+        row = ti.Struct(vol_a=self.particles.mass[a] / self.rho0, diag=0.0, p_sum=0.0, body=self.body_force(self.particles.x[a]))
+        self.nsearch.for_each_neighbor(a, self.particles.x, self.wall_extrapolation_pair, row)
+        return row.diag >= self.wall_row_min_diag
+
+    @ti.func
+    def wall_extrapolation_pair(self, a, b, r_ab, row: ti.template()):
+        """Fluid neighbour b's K_ab and K_ab (p_b + rho0 (g - a_w) . r_ab) in wall a's extrapolation."""
+        if self.particles.kind[b] == FLUID:
+            k_ab, _ = self.laplacian_pair(row.vol_a, b, r_ab)
+            row.diag += k_ab
+            row.p_sum += k_ab * (self.particles.p[b] + hydrostatic_pressure_difference(self.rho0, row.body, r_ab))
+
+    @ti.kernel
+    def extrapolate_dry_walls(self):
+        """The walls without a row: p_w = sum_f K_wf (p_f + rho0 (g - a_w) . r_wf) / sum_f K_wf, the value their row
+        would have given, from the solved fluid pressure; p_b where no fluid is in reach."""
+        P = self.particles
+        for a in range(self.n):
+            if self.live() and P.kind[a] == WALL and self.ppe.role[a] != UNKNOWN:
+                row = ti.Struct(vol_a=P.mass[a] / self.rho0, diag=0.0, p_sum=0.0, body=self.body_force(P.x[a]))
+                self.nsearch.for_each_neighbor(a, P.x, self.wall_extrapolation_pair, row)
+                p = self.p_background
+                if row.diag > 0.0:
+                    p = row.p_sum / row.diag
+                P.p[a] = p
+
+    @ti.func
     def ppe_row_pair(self, a, b, r_ab, row: ti.template()):
         """Neighbour b (the row's k-th entry) in a's PPE row: the Shao & Lo coefficient K_ab to the matrix
         (unknown b), to the diagonal and right side (Dirichlet b) or as the Neumann wall difference (wall b);
@@ -313,7 +349,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         v_b = P.v[b]
         if P.kind[b] == WALL:
             v_b += row.dt * row.body
-            if ti.static(self.extrapolated_walls):
+            if E.role[b] == UNKNOWN:  # (isph.walls: extrapolated, a wall with a row of its own)
                 c_ab = k_ab
                 row.diag += k_ab
             else:
@@ -352,6 +388,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         """After the solve: Adami's extrapolation (`isph.walls: neumann`), or the p_w the solve found
         (`extrapolated`), floored at the ambient pressure."""
         if self.extrapolated_walls:
+            self.extrapolate_dry_walls()
             if not self.wall_tension:
                 self.floor_wall_pressure()
         else:

@@ -112,10 +112,14 @@ class FreeSurfaceDetection:
                             self.depth[a] = 0.0
                     if candidate:  # (physics/free_surface.py) below it: floored at rho0
                         rho = ti.max(rho, self.rho0)  # a cut-off kernel sum is not expansion
+                    if spray:  # its kernel sum is the walls', not a compression of fluid (isolated_from_fluid)
+                        rho = self.rho0
                     P.rho[a] = rho
                 if ti.static(self.extrapolated_walls):
                     if P.kind[a] == WALL:
-                        role = UNKNOWN  # (a dry wall, no fluid neighbour: DIRICHLET in the assembly)
+                        role = DIRICHLET
+                        if self.wet_wall_row(a):
+                            role = UNKNOWN
                 E.role[a] = role
 
     @ti.func

@@ -173,6 +173,8 @@ class ParticleShifting:
                     length = dr.norm()
                     if length > self.max_shift:
                         dr *= self.max_shift / length
+                    if ti.static(getattr(S, "kinematic_walls", False)):
+                        dr, _ = S.kinematic_wall_cut(a, dr, 1.0)  # a shift keeps the wall clearance as a step does
                     self.shift[a] = dr
                     if ti.static(self.taylor):
                         y = renormalised_displacement(sums.moment, dr)
