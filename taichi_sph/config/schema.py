@@ -350,12 +350,12 @@ class ISPH:
                                              "cannot hold it; physics/free_surface.py); None = off", positive=True)
     walls: str = opt("neumann", "the wall pressure of the PPE and the correction: 'neumann' (pairwise hydrostatic "
                                 "differences p_a - p_w = rho0 g . r_aw in the fluid rows, then Adami's mean in the "
-                                "correction: a push the PPE did not see; dam_break_buchner_2d 'unstable' at 0.64 s) or "
-                                "'extrapolated' (each wall particle next to fluid is an unknown whose row extrapolates "
-                                "its fluid neighbours' pressure hydrostatically, sum_f K_wf (p_w - p_f - rho0 g . r_wf) = 0: "
-                                "the system stays symmetric and the correction pushes with the p_w the PPE solved for; "
-                                "Buchner ok in 4 of 4 starts, but the 3D wave's amplitude 0.897 and a deep wave's period "
-                                "-0.89%, so not the default yet; docs/isph.md)",
+                                "correction: a push the PPE did not see; dam_break_buchner_2d ok in 4 of 6 starts) or "
+                                "'extrapolated' (each wall particle with enough fluid in reach is an unknown whose row "
+                                "extrapolates its fluid neighbours' pressure hydrostatically, "
+                                "sum_f K_wf (p_w - p_f - rho0 g . r_wf) = 0: the system stays symmetric and the correction "
+                                "pushes with the p_w the PPE solved for; Buchner ok in 6 of 6 starts, but the 3D wave's "
+                                "amplitude 0.899 and a deep wave's period -0.86%, so not the default yet; docs/isph.md)",
                      choices=("neumann", "extrapolated"))
     step_force: str = opt("total", "the acceleration in the step's force limit CFL sqrt(h / |a|): 'total' (predictor and "
                                    "pressure) or 'explicit' (body force and viscous terms: the pressure is the projection's "

@@ -102,7 +102,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.grad_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np)
         self.lap_norm = 1.0 / lattice_gradient_sum(cfg, self.kernel.dw_dr_np, self.eta2)
         # isph.walls extrapolated: a wall's row enters the system only where its fluid neighbours' sum_f K_wf is at
-        # least WALL_ROW_MIN_SHARE of an interior fluid row's diagonal (`wet_wall_rows`)
+        # least WALL_ROW_MIN_SHARE of an interior fluid row's diagonal (`wet_wall_row`)
         self.wall_row_min_diag = WALL_ROW_MIN_SHARE * self.lap_norm * self.lattice_volume * 2.0 / self.rho0 * \
             lattice_laplacian_weight_sum(cfg, self.kernel.dw_dr_np, self.eta2)
         self.g_norm = float(np.linalg.norm(cfg.gravity_vector))
@@ -349,7 +349,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         v_b = P.v[b]
         if P.kind[b] == WALL:
             v_b += row.dt * row.body
-            if E.role[b] == UNKNOWN:  # (isph.walls: extrapolated, a wall with a row of its own)
+            wall_unknown = False
+            if ti.static(self.extrapolated_walls):
+                wall_unknown = E.role[b] == UNKNOWN  # a wall with a row of its own (`wet_wall_row`)
+            if wall_unknown:
                 c_ab = k_ab
                 row.diag += k_ab
             else:

@@ -7,7 +7,9 @@ tangent to the surface, a particle with a surface particle within its support lo
 (normal n = -sum_b V_b grad_a W_ab / |.|). The rows under the surface row have a truncated kernel too, and
 -D grad C points out of the fluid there: shifted outward every step they lift the surface (the standing wave,
 skillen with the outer-layer projection only: the second row up 3.9e-3 dx a step, the wave's energy +72% in
-0.3 s; docs/isph.md).
+0.3 s; docs/isph.md). Where the solver has the kinematic wall condition (physics/walls.py) the shift obeys it as a
+step's velocity does: no nearer a face than the clearance (before session 33 the shift, applied after the velocity's
+cut, moved the dam-break front's particles to 0.07 dx off the floor; docs/isph.md).
 
 With `shifting.walls: mirror` (ISPH's default, `auto`) a container wall (wall_box) enters the kernel sum, its gradient and grad C as
 the images of the fluid in its faces rather than as its wall particles, whose part depends on how a fluid row sliding
