@@ -307,13 +307,20 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         row.k += 1
 
     @ti.func
+    def wall_extrapolation(self, a):
+        """Wall particle a's sums over its fluid neighbours f: (sum_f K_af, sum_f K_af (p_f + rho0 (g - a_w) . r_af))."""
+        P = self.particles
+        row = ti.Struct(vol_a=P.mass[a] / self.rho0, diag=0.0, p_sum=0.0, body=self.body_force(P.x[a]))
+        self.nsearch.for_each_neighbor(a, P.x, self.wall_extrapolation_pair, row)
+        return row.diag, row.p_sum
+
+    @ti.func
     def wet_wall_row(self, a) -> bool:
         """`isph.walls: extrapolated`: does wall particle a get a row (be an unknown)? sum_f K_af over its fluid
         neighbours >= WALL_ROW_MIN_SHARE of an interior row's diagonal; a drier wall is a Neumann pair in its fluid
-        neighbours' rows and takes its pressure after the solve (`extrapolate_dry_walls`)."""
-        row = ti.Struct(vol_a=self.particles.mass[a] / self.rho0, diag=0.0, p_sum=0.0, body=self.body_force(self.particles.x[a]))
-        self.nsearch.for_each_neighbor(a, self.particles.x, self.wall_extrapolation_pair, row)
-        return row.diag >= self.wall_row_min_diag
+        neighbours' rows and takes its pressure after the solve (`extrapolated_wall_pressure`)."""
+        diag, _ = self.wall_extrapolation(a)
+        return diag >= self.wall_row_min_diag
 
     @ti.func
     def wall_extrapolation_pair(self, a, b, r_ab, row: ti.template()):
@@ -324,17 +331,22 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
             row.p_sum += k_ab * (self.particles.p[b] + hydrostatic_pressure_difference(self.rho0, row.body, r_ab))
 
     @ti.kernel
-    def extrapolate_dry_walls(self):
-        """The walls without a row: p_w = sum_f K_wf (p_f + rho0 (g - a_w) . r_wf) / sum_f K_wf, the value their row
-        would have given, from the solved fluid pressure; p_b where no fluid is in reach."""
+    def extrapolated_wall_pressure(self):
+        """After the solve (`isph.walls: extrapolated`): a wall with a row keeps its solved p_w; one without takes
+        p_w = sum_f K_wf (p_f + rho0 (g - a_w) . r_wf) / sum_f K_wf, the value its row would have given (p_b where no
+        fluid is in reach); then p_w >= p_b (see `incompressible_walls`) unless the fluid fills its container
+        (`wall_tension`)."""
         P = self.particles
         for a in range(self.n):
-            if self.live() and P.kind[a] == WALL and self.ppe.role[a] != UNKNOWN:
-                row = ti.Struct(vol_a=P.mass[a] / self.rho0, diag=0.0, p_sum=0.0, body=self.body_force(P.x[a]))
-                self.nsearch.for_each_neighbor(a, P.x, self.wall_extrapolation_pair, row)
-                p = self.p_background
-                if row.diag > 0.0:
-                    p = row.p_sum / row.diag
+            if self.live() and P.kind[a] == WALL:
+                p = P.p[a]
+                if self.ppe.role[a] != UNKNOWN:
+                    p = self.p_background
+                    diag, p_sum = self.wall_extrapolation(a)
+                    if diag > 0.0:
+                        p = p_sum / diag
+                if ti.static(not self.wall_tension):
+                    p = ti.max(p, self.p_background)
                 P.p[a] = p
 
     @ti.func
@@ -391,19 +403,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         """After the solve: Adami's extrapolation (`isph.walls: neumann`), or the p_w the solve found
         (`extrapolated`), floored at the ambient pressure."""
         if self.extrapolated_walls:
-            self.extrapolate_dry_walls()
-            if not self.wall_tension:
-                self.floor_wall_pressure()
+            self.extrapolated_wall_pressure()
         else:
             self.wall_pressure()
-
-    @ti.kernel
-    def floor_wall_pressure(self):
-        """p_w >= p_b (see `incompressible_walls`)."""
-        P = self.particles
-        for a in range(self.n):
-            if self.live() and P.kind[a] == WALL:
-                P.p[a] = ti.max(P.p[a], self.p_background)
 
     def wall_pressure(self) -> None:
         """Adami et al. (2012) p_w = sum_f (p_f + rho_f (g - a_w) . r_wf) W_wf / sum_f W_wf (and the no-slip
