@@ -3,6 +3,7 @@ the exit code of a failing scene; and the cavity metric's Ghia Re 1000 reference
 
 from __future__ import annotations
 
+import json
 import shutil
 from pathlib import Path
 
@@ -12,8 +13,9 @@ import yaml
 
 from taichi_sph.cli.main import main
 from taichi_sph.config.loader import bundled_configs_dir, load_config
+from taichi_sph.run.provenance import code_version
 from taichi_sph.studies.compare import SOLVERS, derive_config
-from taichi_sph.studies.validate import SUMMARY_BEGIN, SUMMARY_END, report_markdown, validation_scenes
+from taichi_sph.studies.validate import SUMMARY_BEGIN, SUMMARY_END, report_markdown, runs_provenance, validation_scenes
 from taichi_sph.studies.validate_checks import CHECKS, QUICK, checks_for, quick_overrides
 from taichi_sph.validation import reference as ref
 from taichi_sph.validation.metrics.flows import CavityMetric
@@ -147,6 +149,19 @@ def test_quick_run_of_a_tiny_scene_writes_the_table_with_numbers(tmp_path, capsy
     assert status in ("meets target", "misses target")
     assert "--quick --configs" in text and "(quick)" in text
     assert (out.parent / "validation_report_figures" / "hydrostatic_2d.png").stat().st_size > 1000
+    summary = json.loads((tmp_path / "runs" / "hydrostatic_2d-wcsph" / "summary.json").read_text())
+    assert summary["code"] == code_version() and summary["code"].startswith("taichi-sph ")
+    assert f"The runs: 1, by {code_version()} (1); their wall time" in text
+
+
+def test_the_report_names_the_code_each_run_was_measured_by():
+    """With --resume the report's own time and commit are not the runs': the header names the runs' code (from each
+    summary) and sums their wall time."""
+    summaries = {"a": {"code": "taichi-sph 0.1.0, git abc", "wall_time_s": 10.4},
+                 "b": {"code": "taichi-sph 0.1.0, git abc", "wall_time_s": 5.0},
+                 "c": {"code": "taichi-sph 0.1.0, git def+", "wall_time_s": 1.0}, "d": {"wall_time_s": None}}
+    assert runs_provenance(summaries) == ("The runs: 4, by taichi-sph 0.1.0, git abc (2), taichi-sph 0.1.0, git def+ "
+                                          "(1), code not recorded (1); their wall time 16 s in all (summed over runs).")
 
 
 def test_a_failing_scene_is_a_row_and_the_exit_code(tmp_path, capsys):

@@ -28,6 +28,7 @@ from taichi_sph.run.interrupt import sigint_calls
 from taichi_sph.run.lock import held
 from taichi_sph.run.loop_state import LoopState, RunResult
 from taichi_sph.run.output import Progress, RunFolder
+from taichi_sph.run.provenance import code_version
 from taichi_sph.run.runtime import current_arch_name, init_taichi
 from taichi_sph.run.summary import conservation, dt_range, step_timing
 from taichi_sph.scene.bodies import FLUID, build_particles, wall_crossings
@@ -405,7 +406,7 @@ class Simulation:
             "particle_order": self.order_log.summary(),
             "c0": solver.c0 if solver.name == "wcsph" else None,
             "features": solver.features.compiled_in(),
-            "arch": current_arch_name(), "precision": cfg.precision,
+            "arch": current_arch_name(), "precision": cfg.precision, "code": code_version(),
             "neighbours_max": solver.nsearch.max_count() if solver.nsearch.lists else None,
             "neighbour_capacity": solver.max_neighbors if solver.nsearch.lists else None,
             "last_checkpoint_t": loop.last_checkpoint_t, "resumed_at": loop.resumed_at,

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import os
 import platform
-import subprocess
 import sys
 import time
 from dataclasses import dataclass
@@ -29,6 +28,7 @@ from pathlib import Path
 from taichi_sph.config.loader import bundled_configs_dir, load_config, load_raw
 from taichi_sph.config.schema import Config
 from taichi_sph.errors import SPHError, UsageError
+from taichi_sph.run.provenance import code_version
 from taichi_sph.studies.compare import SOLVERS, batch_exit_code, derive_config
 from taichi_sph.studies.executor import Dispatch, Job, dispatch_from_args, is_finished, run_cases
 from taichi_sph.studies.sweep import parse_solvers
@@ -236,23 +236,17 @@ def report_markdown(rows: list[dict], figures: dict[str, str], *, quick: bool, c
     return "\n".join(lines)
 
 
-def code_version() -> str:
-    """The code the report measured: the package version and, in a git checkout, its commit (with `+` when the
-    working tree differs from it)."""
-    from importlib.metadata import PackageNotFoundError, version
-    try:
-        text = f"taichi-sph {version('taichi-sph')}"
-    except PackageNotFoundError:
-        text = "taichi-sph (not installed)"
-    root = Path(__file__).resolve().parents[2]
-    try:
-        commit = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
-                                text=True, timeout=10, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=10, check=True).stdout.strip()
-    except (OSError, subprocess.SubprocessError):
-        return text
-    return f"{text}, git {commit}{'+' if dirty else ''}" if commit else text
+def runs_provenance(summaries: dict[str, dict]) -> str:
+    """What measured the report's numbers: the code each run's summary names (runs from before summaries kept it:
+    'code not recorded') with its count, and the runs' own wall time summed (with --resume the report's time is
+    not theirs)."""
+    codes: dict[str, int] = {}
+    for s in summaries.values():
+        code = s.get("code") or "code not recorded"
+        codes[code] = codes.get(code, 0) + 1
+    wall = sum(float(s.get("wall_time_s") or 0.0) for s in summaries.values())
+    by = ", ".join(f"{code} ({n})" for code, n in sorted(codes.items(), key=lambda kv: -kv[1]))
+    return f"The runs: {len(summaries)}, by {by}; their wall time {wall:.0f} s in all (summed over runs)."
 
 
 def _header(quick: bool, jobs: int, seconds: float, reused: int = 0, cases: int = 0) -> str:
@@ -300,6 +294,8 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
         if path is not None:
             figures[scene] = os.path.relpath(path, out.parent)
     header = _header(quick, dispatch.jobs, time.perf_counter() - t0, reused, len(jobs))
+    if summaries:
+        header += " " + runs_provenance(summaries)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(report_markdown(rows, figures, quick=quick, command=command, header=header,
                                    convergence=convergence, orders=orders))
