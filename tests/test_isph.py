@@ -522,6 +522,68 @@ def test_a_moving_lid_bounds_the_first_step():
     assert dt == pytest.approx(0.25 * cfg.particles.dx * cfg.particles.hdx / 1.0, rel=1e-6)
 
 
+def test_a_pressed_unknown_is_not_pulled_into_its_wall():
+    """The tip of the run-up film on dam_break_buchner_2d's far wall as traced at t = 0.752 s (session 34): at the
+    kinematic clearance, 0.25 dx from the side wall's face, three fluid neighbours (0.7 dx up the film, 1.5 dx below,
+    2 dx off the wall), an unknown (the up-film neighbour lies in its outward cone). With a pressure maximum there,
+    the walls' Adami mean (of the fluid near each wall) lies below the tip's own pressure, and the difference-form
+    gradient pulled the tip on into the wall, which its PPE row (Neumann walls: p_w = p_a - rho0 g . r_aw) did not
+    plan: 48 -> 273 kPa in six steps, then up the wall at 20 m/s. An unknown pressed inside its rest distance takes
+    each such wall's pressure as at least that Neumann value (physics/walls.py pressed_wall_pressure): the correction
+    is the corrected gradient with those values, and the pull toward the wall is gone."""
+    dx = 0.02
+    cfg = tank_cfg(dx=dx, particles={"hdx": 1.3},
+                   bodies=[{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.2, 0.3]},
+                           {"type": "fluid_block", "lo": [0.5 - 4 * dx, 0.3], "hi": [0.5, 0.3 + dx]},
+                           {"type": "wall_box", "lo": [0.0, 0.0], "hi": [0.5, 0.6], "layers": 4, "open_top": True}])
+    arrays = build_particles(cfg)
+    fluid = np.flatnonzero(arrays.kind == 0)
+    film = fluid[arrays.x[fluid, 0] > 0.4]
+    tip = np.array([0.5 - 0.25 * dx, 0.4])
+    arrays.x[film] = tip + dx * np.array([[0.0, 0.0], [-0.31, 0.63], [-0.06, -1.52], [-1.87, -0.64]])
+    solver = ISPHSolver(cfg, arrays)
+    solver.prepare()
+    P = solver.particles
+    x, kind = P.x.to_numpy().astype(np.float64), P.kind.to_numpy()
+    at = int(np.argmin(np.linalg.norm(x - tip, axis=1)))
+    assert solver.ppe.role.to_numpy()[at] == UNKNOWN
+    # a pressure maximum at the tip: 10 kPa, every other fluid particle at 0; the walls take Adami's mean of that
+    p = np.where(kind == 0, 0.0, P.p.to_numpy())
+    p[at] = 1.0e4
+    P.p.from_numpy(p.astype(np.float32))
+    solver.wall_pressure()
+    p = P.p.to_numpy().astype(np.float64)
+    P.acc.from_numpy(np.zeros_like(x, dtype=np.float32))
+    solver.correct_and_move(1.0e-5)
+    acc = P.acc.to_numpy()[at]
+
+    rho0, g = 1000.0, np.array([0.0, -9.81])
+    dw_dr = make_kernel("wendland_c2", 2, 1.3 * dx).dw_dr_np
+    r_ab = x[at] - x
+    r = np.linalg.norm(r_ab, axis=1)
+    near = (r > 0) & (r < 2.6 * dx)
+    walls_near = near & (kind != 0)
+    assert np.all(x[walls_near, 0] > 0.5)  # all behind the side wall's face, 0.25 dx off it: pressed
+    vol = P.mass.to_numpy().astype(np.float64) / rho0
+
+    def correction(p_wall):
+        p_b = np.where(kind == 0, p, p_wall)
+        use = near & ((kind == 0) | (p_b > 0.0))
+        grad_w = dw_dr(r[use])[:, None] * r_ab[use] / r[use][:, None]
+        sum_dp = ((vol[use] * (p_b[use] - p[at]))[:, None] * grad_w).sum(axis=0)
+        moment = np.einsum("k,ki,kj->ij", vol[use], -r_ab[use], grad_w)
+        return -np.linalg.solve(moment.T, sum_dp) / rho0
+
+    neumann = p[at] - rho0 * r_ab @ g
+    expected = correction(np.maximum(p, neumann))
+    adami_only = correction(p)
+    assert np.max(p[walls_near]) < p[at]  # Adami's mean lies below the tip's own pressure at every wall in reach
+    np.testing.assert_allclose(acc, expected, rtol=2e-3, atol=1e-3 * np.abs(adami_only).max())
+    # along the wall's normal (+x is into the wall): Adami's values alone pull the tip in (87 m/s^2), its row's
+    # Neumann values push it off (-113 m/s^2)
+    assert expected[0] < 0.0 < adami_only[0], (adami_only, expected)
+
+
 def test_spray_on_a_wall_is_free_surface():
     """A particle alone in a wall corner, and a pair on a wall (the walls fill their kernel sums), have no fluid to
     hold their PPE rows: they are Dirichlet particles (physics/free_surface.py isolated_from_fluid;

@@ -10,6 +10,10 @@ the condition once acted along the cavity's lid, and what it measured: docs/note
 
 import taichi as ti
 
+# a fluid particle nearer a wall face than this many dx is pressed inside its rest distance: the lattice puts the
+# first fluid layer dx/2 off each face; the margin keeps an undisturbed layer out (docs/isph.md, session 34)
+PRESSED_DISTANCE = 0.45
+
 
 @ti.func
 def adami_wall_pressure(sum_pw: float, sum_rho_rw, sum_w: float, body_acc) -> float:
@@ -44,3 +48,15 @@ def kinematic_wall_condition(v, normal, distance: float, clearance: float, dt: f
         out = v + (floor - vn) * normal
         cut = 1
     return out, cut
+
+
+@ti.func
+def pressed_wall_pressure(p_wall: float, p_a: float, hydrostatic_difference: float) -> float:
+    """The pressure of wall w in the pressure gradient of an ISPH unknown a pressed inside its rest distance (nearer
+    w's face than PRESSED_DISTANCE): max(p_w, p_a - rho0 (g - a_w) . r_aw), Adami's mean but never below the
+    Neumann value a's own PPE row assumed (p_a - p_w = rho0 (g - a_w) . r_aw). Adami's mean is a weighted mean of
+    the fluid near w; for a particle pressed into a wall with a pressure above its neighbours' it lies below p_a,
+    and the difference form (p_w - p_a) grad W then pulls the particle on into the wall, which its row did not
+    plan: its kernel sum rises, the next source raises p_a again (the tip of a run-up film on dam_break_buchner_2d's
+    wall: 48 -> 273 kPa in six steps, then up the wall at 20 m/s)."""
+    return ti.max(p_wall, p_a - hydrostatic_difference)

@@ -43,6 +43,7 @@ from taichi_sph.physics.ppe_terms import (
     shao_lo_laplacian_weight,
     velocity_divergence_term,
 )
+from taichi_sph.physics.walls import PRESSED_DISTANCE, pressed_wall_pressure
 from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays
 from taichi_sph.scene.lattice import lattice_gradient_sum, lattice_kernel_sum, lattice_laplacian_weight_sum
 from taichi_sph.solvers.base import SolverBase
@@ -115,6 +116,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.wall_mass = self.rho0 * self.lattice_volume
         # kinematic wall condition: each wall particle knows the face it lies behind (permuted with it)
         self.init_kinematic_walls(arrays, ic.wall_clearance)
+        # an unknown pressed into a wall takes its row's Neumann value there at least (the faces come with the kinematic
+        # condition; extrapolated walls are unknowns of the PPE, their pressure is the solve's)
+        self.pressed_walls = self.kinematic_walls and not self.extrapolated_walls
         P.make_persistent(P.acc)  # the free-surface pressure uses the last acceleration
         self.init_free_surface_detection()
         self.rho_summation = P.add_scalar()    # rho_a before any floor: the density-invariance source
@@ -433,7 +437,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
                 sums = ti.Struct(p_a=P.p[a], sum_dp=ti.Vector.zero(float, self.dim),
-                                 moment=ti.Matrix.zero(float, self.dim, self.dim))
+                                 moment=ti.Matrix.zero(float, self.dim, self.dim), body=self.body_force(P.x[a]))
                 self.nsearch.for_each_neighbor(a, P.x, self.pressure_gradient_pair, sums)
                 sum_dp, moment = sums.sum_dp, sums.moment
                 grad_p = self.grad_norm * sum_dp
@@ -469,14 +473,27 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
 
     @ti.func
     def pressure_gradient_pair(self, a, b, r_ab, sums: ti.template()):
-        """Pair (a, b)'s share of sum_b V_b (p_b - p_a) grad_a W_ab and of M_a, over fluid and wetted walls."""
+        """Pair (a, b)'s share of sum_b V_b (p_b - p_a) grad_a W_ab and of M_a, over fluid and wetted walls; an unknown
+        pressed inside its rest distance from b's face takes b's pressure as at least its own row's Neumann value
+        (physics/walls.py pressed_wall_pressure)."""
         P = self.particles
-        wetted = P.kind[b] == FLUID or P.p[b] > self.p_background
+        p_b = P.p[b]
+        p_normal = p_b
+        if ti.static(self.pressed_walls):
+            if P.kind[b] == WALL and self.ppe.role[a] == UNKNOWN:
+                if P.x[a].dot(self.wall_normal[b]) - self.wall_offset[b] < PRESSED_DISTANCE * self.dx:
+                    p_normal = pressed_wall_pressure(p_b, sums.p_a,
+                                                     hydrostatic_pressure_difference(self.rho0, sums.body, r_ab))
+        wetted = P.kind[b] == FLUID or p_normal > self.p_background
         if ti.static(self.wall_tension):
             wetted = True  # (a wall next to fluid is a PPE unknown; in a confined fluid it holds tension too)
         if wetted:
             grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
-            dp, dm = pressure_difference_pair_terms(P.mass[b] / self.rho0, sums.p_a, P.p[b], r_ab, grad_w)
+            dp, dm = pressure_difference_pair_terms(P.mass[b] / self.rho0, sums.p_a, p_b, r_ab, grad_w)
+            if ti.static(self.pressed_walls):
+                if p_normal != p_b:  # along the face's normal only: along the wall the fluid's own gradient stands
+                    n = self.wall_normal[b]
+                    dp += (P.mass[b] / self.rho0) * (p_normal - p_b) * grad_w.dot(n) * n
             sums.sum_dp += dp
             sums.moment += dm
 

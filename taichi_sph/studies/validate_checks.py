@@ -79,7 +79,11 @@ CHECKS: dict[str, tuple[Check, ...]] = {
     "standing_wave": (Check("period_error", "period error", "linear theory", 0.005),
                       Check("amplitude_ratio", "amplitude / viscous envelope", "linear theory", band=(0.97, 1.03)),
                       Check("energy_change_per_period", "energy change per period", "conservation (viscous decay ~ -0.2%)",
-                            band=(-0.01, 0.005))),
+                            band=(-0.01, 0.005)),
+                      # the same target on the wave's own energy, its kinetic energy at the peaks (session 34): the
+                      # energy above rest also holds the mean level's potential energy, which masks the wave's trend
+                      Check("wave_energy_change_per_period", "wave energy change per period (kinetic peaks)",
+                            "conservation (viscous decay ~ -0.2%)", band=(-0.01, 0.005))),
 }
 CAVITY_TARGETS = {1000: 0.02}  # issue 26: Re 1000 at 100 x 100 particles
 CAVITY_FINAL_TARGETS = {100: ("isph", 0.006)}  # issue 26: Re 100, ISPH, the final output (0.0095 before)

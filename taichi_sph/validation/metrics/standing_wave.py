@@ -42,8 +42,28 @@ def observed_period(t: np.ndarray, y: np.ndarray) -> float:
     return float(2.0 * np.mean(np.diff(z))) if len(z) >= 2 else float("nan")
 
 
+def kinetic_peak_trend(t: np.ndarray, kinetic: np.ndarray, period: float) -> float:
+    """The wave's energy change a period from its kinetic energy at the peaks: every half period the surface passes
+    through rest and the wave's energy is all kinetic. The kinetic energy's maximum within a quarter period around
+    each k T / 2, then the least-squares slope of those maxima times T, relative to the first (nan with fewer than
+    three). Unlike the energy above rest it does not see the fluid's mean level, which holds the potential energy of
+    the whole column: in the 3D tank at 20 particles over the depth a level change of 0.017 mm (1.7e-5 of the
+    volume) is 8% of a 2 cm wave's energy a period."""
+    peaks = []
+    for k in range(int(t[-1] / (period / 2)) + 1):
+        near = np.flatnonzero(np.abs(t - k * period / 2) < period / 8)
+        if len(near) > 2:
+            i = near[np.argmax(kinetic[near])]
+            peaks.append((t[i], kinetic[i]))
+    if len(peaks) < 3 or peaks[0][1] <= 0.0:
+        return float("nan")
+    tp, kp = np.array(peaks).T
+    return float(np.polyfit(tp, kp, 1)[0] * period / kp[0])
+
+
 class StandingWaveMetric(MetricObserver):
-    """Errors of a standing wave (module docstring): period, amplitude after the run, energy per period, symmetry."""
+    """Errors of a standing wave (module docstring): period, amplitude after the run, energy per period (above rest,
+    and the wave's own from its kinetic peaks), symmetry."""
 
     def __init__(self, cfg: Config, spec: Metric) -> None:
         super().__init__(cfg, spec)
@@ -82,15 +102,16 @@ class StandingWaveMetric(MetricObserver):
         if self.offset is None:  # the rest level (the surface row's volumes against dx^dim):
             self.offset = (left - self.theory(self.x_left, t), right - self.theory(self.x_right, t))
         left, right = left - self.offset[0], right - self.offset[1]
-        energy = (kinetic_energy(v, m) + potential_energy(self.cfg, x, m)
+        kinetic = kinetic_energy(v, m)
+        energy = (kinetic + potential_energy(self.cfg, x, m)
                   + elastic_energy(self.cfg, rho, m) - self.rest.potential - self.rest.elastic)
-        self.rows.append((t, left, right, energy))
+        self.rows.append((t, left, right, energy, kinetic))
         return {"eta_left": left, "eta_right": right, "eta_theory_left": self.theory(self.x_left, t)}
 
     def finish(self, state: dict) -> dict:
         if len(self.rows) < 8:
             return {"standing_wave_note": "run too short for the standing-wave metric"}
-        t, left, right, energy = (np.asarray(c) for c in zip(*self.rows))
+        t, left, right, energy, kinetic = (np.asarray(c) for c in zip(*self.rows))
         period = 2.0 * math.pi / self.omega
         p_left, p_right = observed_period(t, left), observed_period(t, -right)
         # amplitude over the last full period against the theory's envelope at the same times
@@ -103,4 +124,5 @@ class StandingWaveMetric(MetricObserver):
         return {"period_theory_s": period, "period_error": p_left / period - 1.0,
                 "period_asymmetry": abs(p_left - p_right) / period,
                 "amplitude_ratio": float(amp / envelope) if full else float("nan"),
-                "energy_change_per_period": slope * period / energy[0] if energy[0] > 0 else float("nan")}
+                "energy_change_per_period": slope * period / energy[0] if energy[0] > 0 else float("nan"),
+                "wave_energy_change_per_period": kinetic_peak_trend(t, kinetic, period)}
