@@ -529,8 +529,9 @@ def test_a_pressed_unknown_is_not_pulled_into_its_wall():
     the walls' Adami mean (of the fluid near each wall) lies below the tip's own pressure, and the difference-form
     gradient pulled the tip on into the wall, which its PPE row (Neumann walls: p_w = p_a - rho0 g . r_aw) did not
     plan: 48 -> 273 kPa in six steps, then up the wall at 20 m/s. An unknown pressed inside its rest distance takes
-    each such wall's pressure as at least that Neumann value (physics/walls.py pressed_wall_pressure): the correction
-    is the corrected gradient with those values, and the pull toward the wall is gone."""
+    each such wall's pressure, along the face's normal, as at least that Neumann value (physics/walls.py
+    pressed_wall_pressure): the correction is the corrected gradient with those values, and the pull toward the wall
+    is gone."""
     dx = 0.02
     cfg = tank_cfg(dx=dx, particles={"hdx": 1.3},
                    bodies=[{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.2, 0.3]},
@@ -566,13 +567,16 @@ def test_a_pressed_unknown_is_not_pulled_into_its_wall():
     assert np.all(x[walls_near, 0] > 0.5)  # all behind the side wall's face, 0.25 dx off it: pressed
     vol = P.mass.to_numpy().astype(np.float64) / rho0
 
-    def correction(p_wall):
-        p_b = np.where(kind == 0, p, p_wall)
-        use = near & ((kind == 0) | (p_b > 0.0))
+    def correction(p_normal):
+        """-(1/rho0) M^-T sum_b V_b (p_b - p_a) grad W, a wall's share along the face's normal n = -x at p_normal."""
+        p_n = np.where(kind == 0, p, p_normal)
+        use = near & ((kind == 0) | (p_n > 0.0))
         grad_w = dw_dr(r[use])[:, None] * r_ab[use] / r[use][:, None]
-        sum_dp = ((vol[use] * (p_b[use] - p[at]))[:, None] * grad_w).sum(axis=0)
+        normal = np.array([-1.0, 0.0])
+        along_n = (grad_w @ normal)[:, None] * normal
+        dp = (vol[use] * (p[use] - p[at]))[:, None] * grad_w + (vol[use] * (p_n[use] - p[use]))[:, None] * along_n
         moment = np.einsum("k,ki,kj->ij", vol[use], -r_ab[use], grad_w)
-        return -np.linalg.solve(moment.T, sum_dp) / rho0
+        return -np.linalg.solve(moment.T, dp.sum(axis=0)) / rho0
 
     neumann = p[at] - rho0 * r_ab @ g
     expected = correction(np.maximum(p, neumann))
@@ -580,7 +584,7 @@ def test_a_pressed_unknown_is_not_pulled_into_its_wall():
     assert np.max(p[walls_near]) < p[at]  # Adami's mean lies below the tip's own pressure at every wall in reach
     np.testing.assert_allclose(acc, expected, rtol=2e-3, atol=1e-3 * np.abs(adami_only).max())
     # along the wall's normal (+x is into the wall): Adami's values alone pull the tip in (87 m/s^2), its row's
-    # Neumann values push it off (-113 m/s^2)
+    # Neumann values push it off (-114 m/s^2)
     assert expected[0] < 0.0 < adami_only[0], (adami_only, expected)
 
 
