@@ -266,6 +266,7 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
     """Run every scene with both solvers, write the report and its figures; return {"rows", "statuses", "path"}."""
     log = log or (lambda msg: print(msg, file=sys.stderr))
     t0 = time.perf_counter()
+    code_version()  # the code as it is now, cached for the header: the report's own figures change tracked files
     cases = [c for path in scenes for c in scene_cases(path, quick=quick, overrides=list(overrides), solvers=solvers)]
     studies = studies_for(cases, quick=quick)
     jobs = [Job(c.name, c.cfg, runs_dir / c.name) for c in cases if c.cfg is not None]
