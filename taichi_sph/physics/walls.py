@@ -52,8 +52,9 @@ def kinematic_wall_condition(v, normal, distance: float, clearance: float, dt: f
 
 @ti.func
 def pressed_wall_pressure(p_wall: float, p_a: float, hydrostatic_difference: float) -> float:
-    """The pressure of wall w in the pressure gradient of an ISPH unknown a pressed inside its rest distance (nearer
-    w's face than PRESSED_DISTANCE): max(p_w, p_a - rho0 (g - a_w) . r_aw), Adami's mean but never below the
+    """The pressure of wall w, along w's face normal, in the pressure gradient of an ISPH unknown a pressed inside its
+    rest distance (nearer w's face than PRESSED_DISTANCE; along the wall Adami's value stands, solvers/isph.py
+    pressure_gradient_pair): max(p_w, p_a - rho0 (g - a_w) . r_aw), Adami's mean but never below the
     Neumann value a's own PPE row assumed (p_a - p_w = rho0 (g - a_w) . r_aw). Adami's mean is a weighted mean of
     the fluid near w; for a particle pressed into a wall with a pressure above its neighbours' it lies below p_a,
     and the difference form (p_w - p_a) grad W then pulls the particle on into the wall, which its row did not
