@@ -437,7 +437,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
                 sums = ti.Struct(p_a=P.p[a], sum_dp=ti.Vector.zero(float, self.dim),
-                                 moment=ti.Matrix.zero(float, self.dim, self.dim), body=self.body_force(P.x[a]))
+                                 moment=ti.Matrix.zero(float, self.dim, self.dim))
                 self.nsearch.for_each_neighbor(a, P.x, self.pressure_gradient_pair, sums)
                 sum_dp, moment = sums.sum_dp, sums.moment
                 grad_p = self.grad_norm * sum_dp
@@ -481,9 +481,10 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         p_normal = p_b
         if ti.static(self.pressed_walls):
             if P.kind[b] == WALL and self.ppe.role[a] == UNKNOWN:
-                if P.x[a].dot(self.wall_normal[b]) - self.wall_offset[b] < PRESSED_DISTANCE * self.dx:
+                if self.face_distance(P.x[a], b) < PRESSED_DISTANCE * self.dx:  # (body force: only here, rare)
+                    body = self.body_force(P.x[a])
                     p_normal = pressed_wall_pressure(p_b, sums.p_a,
-                                                     hydrostatic_pressure_difference(self.rho0, sums.body, r_ab))
+                                                     hydrostatic_pressure_difference(self.rho0, body, r_ab))
         wetted = P.kind[b] == FLUID or p_normal > self.p_background
         if ti.static(self.wall_tension):
             wetted = True  # (a wall next to fluid is a PPE unknown; in a confined fluid it holds tension too)

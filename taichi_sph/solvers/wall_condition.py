@@ -39,10 +39,15 @@ class KinematicWalls:
         return state.v, state.cut
 
     @ti.func
+    def face_distance(self, x, b) -> float:
+        """Distance of point x from wall particle b's face, positive on the fluid side: x . n_b - offset_b."""
+        return x.dot(self.wall_normal[b]) - self.wall_offset[b]
+
+    @ti.func
     def kinematic_wall_pair(self, a, b, r_ab, state: ti.template()):
         """The face of wall neighbour b limits state.v (the condition, in neighbour order)."""
         if self.particles.kind[b] == WALL:
-            distance = state.xa.dot(self.wall_normal[b]) - self.wall_offset[b]
+            distance = self.face_distance(state.xa, b)
             if distance > -0.5 * self.dx:
                 w, c = kinematic_wall_condition(state.v, self.wall_normal[b], distance, self.wall_clearance,
                                                 state.dt)
