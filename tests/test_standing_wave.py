@@ -2,12 +2,14 @@
 defaults, and set-ups that must not end "ok". Linear theory: period 1.6714 s, E0 = rho g a^2 L / 4 = 1.96 J.
 
 What the bounds hold (measured December 2026 on the 2-core VM, docs/isph.md, docs/wcsph.md; amplitudes read with the
-B-spline elevation window): ISPH's defaults (h = 1.3 dx, the shift's grad C with the walls mirrored, the Dirichlet
-value's depth strained with the surface under gravity) give period +0.14%, left/right asymmetry 0.07%, amplitude
-1.008 of theory after 3 periods, energy -0.05% a period (dx 0.0125: +0.07%, 0.13%, 0.997, -0.18%): all of issue 23's
-wave targets; WCSPH's (h = 2 dx) -1.01%, 0.50%, 0.997, -0.27%, whose period is outside the issue's 0.5% (-0.58% at
-dx 0.0125; docs/wcsph.md). Before the shift's surface-band projection and blend 1.0 the ISPH run was "unstable" at
-t = 0.17 s (energy +42%). These bounds are today's numbers with a margin, so a regression fails here."""
+B-spline elevation window): ISPH's defaults (h = 1.5 dx in 2D, the shift's grad C with the walls mirrored, the
+Dirichlet value's depth strained with the surface under gravity) give period -0.32%, left/right asymmetry 0.04%,
+amplitude 1.011 of theory after 3 periods, energy above rest +0.12% a period, the wave's own energy (its kinetic
+peaks) +1.29% a period (dx 0.0125: -0.34%, 0.01%, 1.000, -0.14%, +0.24%): issue 23's wave targets but the wave's own
+energy at dx 0.025, whose gain is the divergence in the rows under the surface (docs/isph.md); WCSPH's (h = 2 dx)
+-0.95%, whose period is outside the issue's 0.5% (docs/wcsph.md). Before the shift's surface-band projection and
+blend 1.0 the ISPH run was "unstable" at t = 0.17 s (energy +42%). These bounds are today's numbers with a margin, so
+a regression fails here."""
 
 import math
 
@@ -41,9 +43,11 @@ def test_wcsph_defaults_keep_the_wave_for_three_periods(tmp_path):
 @pytest.mark.parametrize("dx", [0.025, 0.0125])
 def test_isph_defaults_keep_the_wave_for_three_periods(tmp_path, dx):
     """ISPH's defaults (`shifting.walls: auto` = the mirror since session 22, `isph.surface_depth: auto` = strained
-    under gravity since session 23), at 40 and 80 particles over the depth (3.2k / 12.8k fluid): period +0.14% /
-    +0.07%, asymmetry 0.07% / 0.13%, amplitude 1.008 / 0.997, energy -0.05% / -0.18% a period, crest-phase peak
-    +13% / +12%: every one of issue 23's wave targets at both resolutions."""
+    under gravity since session 23, h = 1.5 dx since session 26), at 40 and 80 particles over the depth (3.2k /
+    12.8k fluid): period -0.32% / -0.34%, asymmetry 0.04% / 0.01%, amplitude 1.011 / 1.000, energy above rest
+    +0.12% / -0.14% a period; the wave's own energy (kinetic peaks) +1.29% / +0.24% a period: issue 23's band
+    (-1% to +0.5%) is met at 80 particles over the depth, and at 40 the gain, a resolution error of the rows under
+    the free surface (docs/isph.md), is held below 2%."""
     s = wave(tmp_path, 5.0, f"particles.dx={dx}")
     assert s["status"] == "ok" and s["energy"]["guard"] == "on"
     e = s["errors"]
@@ -52,6 +56,10 @@ def test_isph_defaults_keep_the_wave_for_three_periods(tmp_path, dx):
     assert 0.97 < e["amplitude_ratio"] < 1.03
     assert -0.01 < e["energy_change_per_period"] < 0.005  # the issue's target
     assert s["energy"]["growth"] < 0.25  # the crest-phase peak
+    if dx < 0.02:
+        assert -0.01 < e["wave_energy_change_per_period"] < 0.005  # the issue's target
+    else:
+        assert -0.01 < e["wave_energy_change_per_period"] < 0.02  # the known gain (+1.29%), not more
 
 
 def test_the_fixed_surface_depth_makes_the_wave_slow(tmp_path):
