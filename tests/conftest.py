@@ -52,6 +52,9 @@ SLOW = {
     "test_executor.py::test_ray_cluster_gives_the_same_sweep_as_one_process": "~13 s: starts a local Ray cluster",
     "test_gradient_normalisation.py::test_the_bundled_tank_holds_rho0_g_d_to_a_tenth_of_a_percent": "~100-160 s: WCSPH, 6.4k fluid, 20k steps in f64",
     "test_drops.py::test_isph_defaults_keep_a_users_drop_within_two_percent": "71 s under load 6 (~25 s quiet): ISPH to t = 0.4",
+    # the drop into a pool at half the default step, with and without the switch's noise source
+    "test_viscosity_switch.py::test_the_noise_source_holds_a_pool_at_a_small_step[2.0-ok]": "~15-25 s: ISPH to t = 0.75",
+    "test_viscosity_switch.py::test_the_noise_source_holds_a_pool_at_a_small_step[0.0-unstable]": "~10-20 s: to 0.57 s",
     # the wave with ISPH's defaults over 3 periods (the two short unstable set-ups stay default)
     "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods[0.025]": "~10-35 s: to t = 5",
     "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods[0.0125]": "~25-50 s: 12.8k fluid, to t = 5",

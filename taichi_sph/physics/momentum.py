@@ -137,6 +137,16 @@ def compression_rate(m_b: float, v_ab, rho_a: float, grad_w) -> float:
 
 
 @ti.func
+def particle_noise_rate(v_a, v_fit, h: float) -> float:
+    """|v_a - v_fit| / h [1/s]: how fast particle a moves against the smooth velocity field of its neighbourhood,
+    v_fit the weighted linear fit of its fluid neighbours' velocities at x_a (physics/free_surface.py
+    linear_fit_at_particle, a itself left out). Zero for any linear velocity field and ~(k h)^2 |v| / h for a smooth
+    one; a particle-scale oscillation (a splash's pressure noise) reads its own speed over h. A source for the
+    viscosity switch that an incompressible projection does not hide: its noise barely compresses (-div v ~ 0)."""
+    return (v_a - v_fit).norm() / h
+
+
+@ti.func
 def morris_monaghan_alpha(alpha: float, compression: float, dt: float, tau: float, alpha_min: float,
                           alpha_max: float) -> float:
     """Morris & Monaghan (1997)'s switch: d alpha / dt = -(alpha - alpha_min) / tau + max(-div v, 0) (alpha_max - alpha),
