@@ -377,14 +377,14 @@ class ISPH:
                                                          "WCSPH applies to approaching pairs only (dam_break_2d front RMS raw "
                                                          "/ shifted 0.2088 / 0.0480 with the whole alpha, 0.2436 / 0.0419 "
                                                          "with half; docs/isph.md)", minimum=0.0)
-    switch_noise: float = opt(0.0, "a second source of the viscosity switch in ISPH (wcsph.artificial_viscosity.switch, on "
+    switch_noise: float = opt(2.0, "a second source of the viscosity switch in ISPH (wcsph.artificial_viscosity.switch, on "
                                    "under gravity): alpha_a also rises at this times particle a's noise rate |v_a - v_fit| "
                                    "/ h, v_fit the linear fit of its fluid neighbours' velocities (physics/momentum.py "
                                    "particle_noise_rate). A projected flow's particle noise hardly compresses, so the "
                                    "compression source misses a splash's noise: a drop into a pool at time.cfl 0.125 is "
                                    "'unstable' at 0.57 s with 0, ok with 2; a wave's smooth field reads ~0 "
-                                   "(standing_wave_2d unchanged). 0 (the default, compiled out): as a default 2 left "
-                                   "Buchner's impact ok in 11 of 12 perturbed starts against 12 of 12 (docs/isph.md)",
+                                   "(standing_wave_2d unchanged); Buchner's impact ok in 21 of 24 perturbed starts with 2, "
+                                   "16 of 18 with 0 (docs/isph.md). 0 = the compression source alone (compiled out)",
                               minimum=0.0)
     cfl: float | None = opt(None, "Courant number of ISPH's adaptive step; None = time.cfl. ISPH's step follows the flow "
                                   "speed, WCSPH's the sound speed, so the same number means steps ~10x apart", positive=True)
