@@ -28,13 +28,11 @@ from taichi_sph.config.schema import AUTO, Config
 from taichi_sph.errors import ConfigError
 from taichi_sph.linalg.ppe import BB, DIRICHLET, N_UNKNOWN, SUM_B, UNKNOWN, MatrixFreePPE
 from taichi_sph.physics.density import MIN_MOMENT_DETERMINANT, corrected_gradient_pair_terms
-from taichi_sph.physics.free_surface import linear_fit_at_particle
 from taichi_sph.physics.momentum import (
     compression_rate,
     eulerian_advection,
     monaghan_viscosity,
     morris_laminar_viscosity,
-    particle_noise_rate,
     pressure_difference_pair_terms,
 )
 from taichi_sph.physics.ppe_terms import (
@@ -115,9 +113,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.wall_speed = float(np.linalg.norm(arrays.v[walls], axis=1).max()) if walls.any() else 0.0
         self.alpha, self.beta_av = cfg.artificial_viscosity  # isph.artificial_viscosity_alpha or WCSPH's
         self.init_viscosity_switch(cfg, self.alpha)  # the compression rate: the predictor's, before the projection
-        # the switch's noise source (isph.switch_noise): each particle's velocity against its neighbours' linear fit
+        # the switch's noise source (isph.switch_noise): each particle's velocity against its neighbours' linear fit,
+        # evaluated in the free-surface pass (solvers/isph_free_surface.py), which has the fit's geometric sums
         self.switch_noise = ic.switch_noise
-        self.noise_source = self.features.viscosity_switch and self.switch_noise > 0.0
         self.wall_mass = self.rho0 * self.lattice_volume
         # kinematic wall condition: each wall particle knows the face it lies behind (permuted with it)
         self.init_kinematic_walls(arrays, ic.wall_clearance)
@@ -174,22 +172,17 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
                 xa = P.x[a]
-                # (fit_*: the switch's noise source, the neighbours' weighted linear velocity fit; compiled out without it)
-                sums = ti.Struct(va=P.v[a], acc=self.body_force(xa), alpha_a=self.alpha, compression=0.0, fit_w=0.0,
-                                 fit_v=ti.Vector.zero(float, self.dim), fit_r=ti.Vector.zero(float, self.dim),
-                                 fit_rr=ti.Matrix.zero(float, self.dim, self.dim),
-                                 fit_vr=ti.Matrix.zero(float, self.dim, self.dim))
+                sums = ti.Struct(va=P.v[a], acc=self.body_force(xa), alpha_a=self.alpha, compression=0.0)
                 if ti.static(self.features.viscosity_switch):
                     sums.alpha_a = self.av_alpha[a]
                 if ti.static(self.features.laminar_viscosity or self.features.artificial_viscosity):
                     self.nsearch.for_each_neighbor(a, P.x, self.viscosity_pair, sums)
                 if ti.static(self.features.viscosity_switch):
-                    self.compression[a] = sums.compression
-                    if ti.static(self.noise_source):
-                        if sums.fit_w > 0.0:
-                            v_fit = linear_fit_at_particle(sums.fit_w, sums.fit_v, sums.fit_r, sums.fit_rr, sums.fit_vr)
-                            noise = self.switch_noise * particle_noise_rate(P.v[a], v_fit, self.h)
-                            self.compression[a] = ti.max(sums.compression, noise)
+                    if ti.static(self.features.switch_noise_source):
+                        # the noise rate the free-surface pass left in `compression` (free_surface_noise_rate)
+                        self.compression[a] = ti.max(sums.compression, self.compression[a])
+                    else:
+                        self.compression[a] = sums.compression
                 acc = sums.acc
                 if ti.static(self.eulerian):
                     acc += eulerian_advection(self.grad_v[a], P.v[a])
@@ -203,21 +196,11 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
 
     @ti.func
     def viscosity_pair(self, a, b, r_ab, sums: ti.template()):
-        """The predictor's viscous terms of pair (a, b): Monaghan artificial, Morris laminar (rho = rho0); and fluid
-        neighbour b's share of the switch's velocity fit."""
+        """The predictor's viscous terms of pair (a, b): Monaghan artificial, Morris laminar (rho = rho0)."""
         P = self.particles
         r2 = r_ab.dot(r_ab)
         grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
         is_fluid_b = P.kind[b] == FLUID
-        if ti.static(self.noise_source):
-            if is_fluid_b:
-                mw = P.mass[b] * self.kernel.w(ti.sqrt(r2))
-                r_ba = -r_ab
-                sums.fit_w += mw
-                sums.fit_v += mw * P.v[b]
-                sums.fit_r += mw * r_ba
-                sums.fit_rr += mw * r_ba.outer_product(r_ba)
-                sums.fit_vr += mw * P.v[b].outer_product(r_ba)
         v_ab = sums.va - P.v[b]
         if ti.static(self.features.no_slip):
             if not is_fluid_b:

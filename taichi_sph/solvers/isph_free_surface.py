@@ -16,7 +16,7 @@ from taichi_sph.physics.free_surface import (
     projection_self_ratio,
     strained_surface_depth,
 )
-from taichi_sph.physics.momentum import renormalised_velocity_gradient
+from taichi_sph.physics.momentum import particle_noise_rate, renormalised_velocity_gradient
 from taichi_sph.physics.ppe_terms import free_surface_pressure
 from taichi_sph.scene.bodies import FLUID, WALL
 
@@ -69,6 +69,8 @@ class FreeSurfaceDetection:
                                      r_sum=ti.Vector.zero(float, self.dim),
                                      rr_sum=ti.Matrix.zero(float, self.dim, self.dim),
                                      acc_r_sum=ti.Matrix.zero(float, self.dim, self.dim),
+                                     v_sum=ti.Vector.zero(float, self.dim),
+                                     v_r_sum=ti.Matrix.zero(float, self.dim, self.dim),
                                      sum_dv=ti.Matrix.zero(float, self.dim, self.dim),
                                      m_fluid=ti.Matrix.zero(float, self.dim, self.dim), wall_in_reach=False)
                     self.nsearch.for_each_neighbor(a, P.x, self.free_surface_pair, sums)
@@ -80,6 +82,8 @@ class FreeSurfaceDetection:
                     # value at the neighbours' centroid, ~1 dx inside a surface particle (oscillating drop: half
                     # period -1.25% with it, -0.28% with the fit; docs/isph.md)
                     acc = linear_fit_at_particle(w_fluid, acc_sum, sums.r_sum, sums.rr_sum, sums.acc_r_sum)
+                    if ti.static(self.features.switch_noise_source):
+                        self.compression[a] = self.free_surface_noise_rate(a, sums)
                     rho /= self.lattice_sum
                     self.rho_summation[a] = rho
                     # a fluid that fills its container at the start has no free surface to find (confinement)
@@ -125,7 +129,7 @@ class FreeSurfaceDetection:
     @ti.func
     def free_surface_pair(self, a, b, r_ab, sums: ti.template()):
         """Pair (a, b)'s share of the summation density, grad C, the moments of the self ratio and the
-        weighted linear fit of last step's fluid acceleration."""
+        weighted linear fits of last step's fluid acceleration and (the switch's noise source) of the velocity."""
         P = self.particles
         r = r_ab.norm()
         w = self.kernel.w(r)
@@ -144,12 +148,29 @@ class FreeSurfaceDetection:
             sums.r_sum += mw * r_ba
             sums.rr_sum += mw * r_ba.outer_product(r_ba)
             sums.acc_r_sum += mw * P.acc[b].outer_product(r_ba)
+            if ti.static(self.features.switch_noise_source):
+                sums.v_sum += mw * P.v[b]
+                sums.v_r_sum += mw * P.v[b].outer_product(r_ba)
             if ti.static(self.strained_depth):
                 s_ab, m_ab = corrected_gradient_pair_terms(P.mass[b] / self.rho0, P.v[a] - P.v[b], r_ab, grad_w)
                 sums.sum_dv += s_ab
                 sums.m_fluid += m_ab
         elif ti.static(self.strained_depth):
             sums.wall_in_reach = True
+
+    @ti.func
+    def free_surface_noise_rate(self, a, sums: ti.template()) -> float:
+        """isph.switch_noise x |v_a - v_fit| / h (physics/momentum.py particle_noise_rate), v_fit the weighted linear
+        fit of a's fluid neighbours' velocities at x_a, a itself left out: the acceleration fit's geometric sums less
+        a's own weight (its r and r r^T terms are zero). Left in `compression` for the predictor, which takes
+        max(-div v, this) as the viscosity switch's source; 0 without fluid neighbours."""
+        P = self.particles
+        w_neighbours = sums.w_fluid - P.mass[a] * self.kernel.w0
+        rate = 0.0
+        if w_neighbours > 0.0:
+            v_fit = linear_fit_at_particle(w_neighbours, sums.v_sum, sums.r_sum, sums.rr_sum, sums.v_r_sum)
+            rate = self.switch_noise * particle_noise_rate(P.v[a], v_fit, self.h)
+        return rate
 
     @ti.func
     def surface_layer_depth(self, a, sums: ti.template(), grad_c) -> float:

@@ -26,6 +26,7 @@ class Features:
     laplacian: str                # morris | normalised | renormalised | consistent (the laminar viscosity's)
     artificial_viscosity: bool
     viscosity_switch: bool        # Morris & Monaghan's per-particle alpha
+    switch_noise_source: bool     # ISPH: the switch's second source, the particle noise rate (isph.switch_noise)
     density: str                  # continuity | summation (WCSPH); ISPH always uses summation for its source
     density_diffusion: str        # none | molteni | fourtakas | antuono
     tensile_correction: bool
@@ -72,6 +73,7 @@ class Features:
                        else cfg.fluid.laplacian),
             artificial_viscosity=(alpha > 0.0 or beta > 0.0 or cfg.viscosity_switch),
             viscosity_switch=cfg.viscosity_switch,
+            switch_noise_source=cfg.viscosity_switch and cfg.solver == "isph" and cfg.isph.switch_noise > 0.0,
             density=wc.density if cfg.solver == "wcsph" else "summation",
             density_diffusion=diffusion,
             tensile_correction=cfg.solver == "wcsph" and wc.tensile_correction.enabled,
@@ -111,7 +113,8 @@ class Features:
             if self.transport_velocity:
                 terms.append("transport_velocity")
         if self.artificial_viscosity:
-            terms.append("monaghan_artificial_viscosity" + (":morris_monaghan_switch" if self.viscosity_switch else ""))
+            terms.append("monaghan_artificial_viscosity" + (":morris_monaghan_switch" if self.viscosity_switch else "")
+                         + (":noise_source" if self.switch_noise_source else ""))
         if self.laminar_viscosity:
             terms.append("morris_laminar_viscosity" + ("" if self.laplacian == "morris" else f":{self.laplacian}"))
         if self.gravity:
