@@ -111,3 +111,23 @@ def test_the_kinetic_energy_bounds_the_energy_above_rest_from_below():
     f = state["kind"] == FLUID
     assert row["energy_above_rest"] == pytest.approx(kinetic_energy(state["v"][f], state["mass"][f]))
     assert row["potential_energy"] < watch.rest.potential - 40.0 and loop.energy_start == row["energy_above_rest"]
+
+
+def test_a_gain_inside_the_floor_is_warned_about_not_passed_silently():
+    """The wave's 2 J against the floor's 0.5 J: a peak 20% above the start stays under the bound (1.1 E0 + floor)
+    but is past guards.energy_growth, so the run warns (a d/40 wave at 15 s reached +32% as "ok"); 5% is quiet, and
+    an unguarded run says nothing."""
+    watch, state = watch_and_rows("standing_wave_2d.yaml")
+    loop = LoopState()
+    e0 = measure(watch, state, loop)["energy_above_rest"]
+    assert watch.growth_inside_floor(loop) is None
+    loop.energy_peak = loop.energy_last = 1.2 * e0
+    assert watch.violation(loop) is None  # inside the floor: not unstable
+    note = watch.growth_inside_floor(loop)
+    assert note is not None and "20% above its start" in note and "guards.energy_growth 0.1" in note
+    loop.energy_peak = 1.05 * e0
+    assert watch.growth_inside_floor(loop) is None
+    watch, state = watch_and_rows("standing_wave_2d.yaml", ["guards.energy_growth=null"])
+    measure(watch, state, loop := LoopState())
+    loop.energy_peak = 1.2 * loop.energy_start
+    assert watch.growth_inside_floor(loop) is None

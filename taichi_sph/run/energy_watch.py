@@ -65,6 +65,21 @@ class EnergyWatch:
                           f"{growth:g}) x its start {loop.energy_start:.4g} J + floor {self.floor:.3g} J, with no "
                           f"energy input"}
 
+    def growth_inside_floor(self, loop: LoopState) -> str | None:
+        """A warning when the energy above rest peaked past (1 + guards.energy_growth) x its start but inside the
+        floor, so the guard did not end the run: where the scene's own energy is comparable to the floor (a small
+        wave: its 2 J against 0.5 J) a gain of tens of percent passes as settling. None otherwise or unguarded."""
+        if not self.guarded or loop.energy_start is None or loop.energy_peak is None or loop.energy_start <= 0.0:
+            return None
+        growth = self.cfg.guards.energy_growth
+        start, peak = loop.energy_start, loop.energy_peak
+        if not np.isfinite(peak) or peak <= (1.0 + growth) * start:
+            return None
+        return (f"energy above rest peaked {peak / start - 1.0:.0%} above its start ({start:.4g} -> {peak:.4g} J), past "
+                f"guards.energy_growth {growth:g} but within the floor {self.floor:.3g} J the guard allows for the "
+                f"fluid settling, so not called unstable: at this scene's energy the guard cannot tell a gain from a "
+                f"change of the fluid's level; see kinetic_energy in timeseries.csv")
+
     def summary(self, loop: LoopState) -> dict:
         """summary.json's `energy` block: above rest at the start, the peak and the end, the drift relative to the
         start, and whether the guard watched this run (and why not)."""

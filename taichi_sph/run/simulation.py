@@ -418,7 +418,8 @@ class Simulation:
         return summary
 
     def _end_warnings(self, status: str, crossings: int) -> None:
-        """Fluid particles outside their wall box (at the end, or at output times), particle-order warnings."""
+        """Fluid particles outside their wall box (at the end, or at output times), particle-order warnings, an energy
+        gain the guard's floor let pass."""
         if status == "ok" and crossings:
             self.warnings.append(f"{crossings} fluid particles ended outside their wall box")
         elif status == "ok" and self.loop.max_wall_crossings:
@@ -428,6 +429,9 @@ class Simulation:
             self.warnings.append(f"up to {self.loop.max_outside} fluid particles were outside the domain (within "
                                  f"guards.particles_outside); the first at {self.loop.outside_note}")
         self.warnings.extend(w for w in self.order_log.warnings() if w not in self.warnings)
+        inside_floor = self.energy.growth_inside_floor(self.loop) if status == "ok" else None
+        if inside_floor is not None:
+            self.warnings.append(inside_floor)
 
     def _write_final(self, summary: dict, final: dict) -> None:
         """The last snapshot, the video, the timeseries closed, summary.json (status ok/unstable/interrupted)."""
