@@ -152,6 +152,8 @@ def test_quick_run_of_a_tiny_scene_writes_the_table_with_numbers(tmp_path, capsy
     summary = json.loads((tmp_path / "runs" / "hydrostatic_2d-wcsph" / "summary.json").read_text())
     assert summary["code"] == code_version() and summary["code"].startswith("taichi-sph ")
     assert f"The runs: 1, by {code_version()} (1); their wall time" in text
+    # one thread per run (validate.LOOP_SCHEDULE), not the timing's pick: a rerun repeats the digits
+    assert summary["loop_schedule"] == "serial" and "their CPU loop schedule serial (1)." in text
 
 
 def test_the_report_names_the_code_each_run_was_measured_by():
@@ -162,6 +164,8 @@ def test_the_report_names_the_code_each_run_was_measured_by():
                  "c": {"code": "taichi-sph 0.1.0, git def+", "wall_time_s": 1.0}, "d": {"wall_time_s": None}}
     assert runs_provenance(summaries) == ("The runs: 4, by taichi-sph 0.1.0, git abc (2), taichi-sph 0.1.0, git def+ "
                                           "(1), code not recorded (1); their wall time 16 s in all (summed over runs).")
+    summaries["a"]["loop_schedule"], summaries["b"]["ppe"] = "serial", {"loop_schedule": "parallel"}
+    assert runs_provenance(summaries).endswith("(summed over runs); their CPU loop schedule parallel (1), serial (1).")
 
 
 def test_a_failing_scene_is_a_row_and_the_exit_code(tmp_path, capsys):
@@ -255,3 +259,22 @@ def test_the_re100_cavitys_final_output_target_is_isphs():
     assert final.passes(0.0028, "isph") and not final.passes(0.0095, "isph")
     assert final.passes(0.0066, "wcsph") is None
     assert "target <= 0.006 (ISPH)" in final.reference_text({}, "wcsph")
+
+
+def test_validate_fixes_the_loop_schedule_unless_the_user_did(monkeypatch):
+    """validate's runs take LOOP_SCHEDULE (the timing's pick differs from run to run); a TAICHI_SPH_LOOP_SCHEDULE the
+    user set wins, and the variable is as it was after the run."""
+    import os
+
+    from taichi_sph.sph.schedule import SCHEDULE_ENV, fixed_schedule, schedule_unless_fixed
+    from taichi_sph.studies.validate import LOOP_SCHEDULE
+    assert LOOP_SCHEDULE == "serial"
+    monkeypatch.delenv(SCHEDULE_ENV, raising=False)
+    assert fixed_schedule() is None
+    with schedule_unless_fixed("serial"):
+        assert fixed_schedule() is True
+    assert SCHEDULE_ENV not in os.environ
+    monkeypatch.setenv(SCHEDULE_ENV, "parallel")
+    with schedule_unless_fixed("serial"):
+        assert fixed_schedule() is False
+    assert os.environ[SCHEDULE_ENV] == "parallel"

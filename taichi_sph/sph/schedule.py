@@ -1,6 +1,8 @@
 """Whether a solver's step loops run on one thread (CPU): decided by timing steps."""
 
+import contextlib
 import os
+from collections.abc import Iterator
 
 import numpy as np
 import taichi as ti
@@ -16,6 +18,23 @@ def fixed_schedule() -> bool | None:
     if fixed not in ("auto", "serial", "parallel", ""):
         raise SPHError(f"{SCHEDULE_ENV}={fixed!r}: allowed serial, parallel, auto")
     return None if fixed in ("auto", "") else fixed == "serial"
+
+
+@contextlib.contextmanager
+def schedule_unless_fixed(schedule: str | None) -> Iterator[None]:
+    """Runs started inside use `schedule` (serial | parallel; None: leave it to timing) unless the environment
+    already fixes TAICHI_SPH_LOOP_SCHEDULE (the user's choice wins). A study whose numbers must repeat to the
+    digit on a rerun (`validate`) fixes it: the timing that decides otherwise differs from run to run, and the
+    two schedules may round a pair term differently (LoopSchedule)."""
+    if schedule is None or os.environ.get(SCHEDULE_ENV, "").strip():
+        yield
+        return
+    os.environ[SCHEDULE_ENV] = schedule
+    try:
+        fixed_schedule()  # refuse a bad value here, not in the run
+        yield
+    finally:
+        os.environ.pop(SCHEDULE_ENV, None)
 
 
 class LoopSchedule:

@@ -42,12 +42,14 @@ CLUSTER_HINT = "pip install taichi-sph[cluster]"
 
 @dataclass(frozen=True)
 class Job:
-    """One case of a study: a config run into its own folder."""
+    """One case of a study: a config run into its own folder; `loop_schedule` (serial | parallel) fixes the CPU
+    loop schedule for it unless TAICHI_SPH_LOOP_SCHEDULE is set (None: decided by timing, sph/schedule.py)."""
 
     name: str
     cfg: Config
     run_dir: Path
     render: bool = False
+    loop_schedule: str | None = None
 
 
 @dataclass(frozen=True)
@@ -124,7 +126,9 @@ def run_case(cfg: Config, out_dir: Path, *, render: bool = False, quiet: bool = 
 
 def run_job(job: Job) -> dict:
     """The unit of work every executor sends: one case into its folder."""
-    return run_case(job.cfg, job.run_dir, render=job.render)
+    from taichi_sph.sph.schedule import schedule_unless_fixed
+    with schedule_unless_fixed(job.loop_schedule):
+        return run_case(job.cfg, job.run_dir, render=job.render)
 
 
 # ----------------------------------------------------------------------------- the folders

@@ -7,7 +7,9 @@ report (default docs/validation_report.md; with --quick, renders/validate-quick/
 reference or published figure and target of validate_checks.py, resolution, wall time, status), in the order of
 the config files, and one figure per scene (validate_figures.py) in `<report stem>_figures/`. Scenes with a
 convergence study (validate_convergence.py: the Taylor-Green vortex at 4 spacings) add its runs and a section with
-the observed order. Only the header line carries a date, so a rerun rewrites the same table up to run-to-run noise.
+the observed order. Only the header line carries a date, and every run's CPU loops run on one thread (LOOP_SCHEDULE),
+so a rerun on the same machine and build rewrites the same table to the digit (another machine or build: up to
+run-to-run noise).
 
 A run that fails or ends unstable is a row saying so; the command then exits as compare and sweep do
 (compare.batch_exit_code: 130 interrupted, 1 failed, 3 unstable, else 0). A missed target is a status in the
@@ -21,7 +23,7 @@ import os
 import platform
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import date
 from pathlib import Path
 
@@ -48,6 +50,10 @@ from taichi_sph.studies.validate_convergence import (
 
 DEFAULT_REPORT = Path("docs/validation_report.md")
 QUICK_REPORT = "validation_report.md"  # --quick: in its runs folder, never over the validated report
+# Every run on one CPU thread (TAICHI_SPH_LOOP_SCHEDULE, when set, wins): a rerun repeats the report's digits. Left to
+# timing, WCSPH's schedule differs between runs and the two round a pair term differently, which a wave's or an
+# impact's particle noise grows into ~0.1% of a period (docs/validation.md). The cases run side by side (--jobs).
+LOOP_SCHEDULE = "serial"
 COLUMNS = ("scene", "solver", "metric", "ours", "reference / target", "resolution", "wall time [s]", "status")
 
 
@@ -246,7 +252,14 @@ def runs_provenance(summaries: dict[str, dict]) -> str:
         codes[code] = codes.get(code, 0) + 1
     wall = sum(float(s.get("wall_time_s") or 0.0) for s in summaries.values())
     by = ", ".join(f"{code} ({n})" for code, n in sorted(codes.items(), key=lambda kv: -kv[1]))
-    return f"The runs: {len(summaries)}, by {by}; their wall time {wall:.0f} s in all (summed over runs)."
+    schedules: dict[str, int] = {}
+    for s in summaries.values():
+        schedule = s.get("loop_schedule") or (s.get("ppe") or {}).get("loop_schedule")
+        if schedule:
+            schedules[schedule] = schedules.get(schedule, 0) + 1
+    loops = ("; their CPU loop schedule " + ", ".join(f"{k} ({n})" for k, n in sorted(schedules.items()))
+             if schedules else "")
+    return f"The runs: {len(summaries)}, by {by}; their wall time {wall:.0f} s in all (summed over runs){loops}."
 
 
 def _header(quick: bool, jobs: int, seconds: float, reused: int = 0, cases: int = 0) -> str:
@@ -271,6 +284,7 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
     studies = studies_for(cases, quick=quick)
     jobs = [Job(c.name, c.cfg, runs_dir / c.name) for c in cases if c.cfg is not None]
     jobs += [job for study in studies for job in study_jobs(study, runs_dir)]
+    jobs = [replace(job, loop_schedule=LOOP_SCHEDULE) for job in jobs]
     reused = sum(1 for j in jobs if dispatch.resume and is_finished(j.run_dir))
     summaries = run_cases(jobs, dispatch, label="validate") if jobs else {}
     rows = [row for c in cases for row in case_rows(c, summaries.get(c.name))]
