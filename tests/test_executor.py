@@ -198,3 +198,22 @@ def test_cluster_that_cannot_be_reached_exits_2_and_writes_nothing(capsys, monke
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and err[-1].startswith("error: --cluster auto: cannot connect to Ray")
     assert not out.exists()
+
+
+def test_a_pool_starts_the_longest_cases_first():
+    """estimated_work: particles x neighbours x steps (WCSPH's dt at c0 + U, an ISPH step ISPH_STEP_COST); a pool
+    starts the cases in decreasing estimate, so the longest is not left to run alone at the end."""
+    configs = bundled_configs_dir()
+    tank = load_config(TANK, TINY)
+    finer = load_config(TANK, TINY + ["particles.dx=0.025"])
+    longer = load_config(TANK, TINY + ["time.t_end=0.04"])
+    isph = load_config(TANK, TINY + ["solver=isph"])
+    work = ex.estimated_work
+    assert 4 < work(finer) / work(tank) < 8  # 2x the steps, 4x the fluid and ~2x the wall particles (2D)
+    assert work(longer) == pytest.approx(2 * work(tank))
+    speed = tank.expected_speed
+    assert work(isph) / work(tank) == pytest.approx(ex.ISPH_STEP_COST * speed / (speed + tank.sound_speed), rel=0.05)
+    wave_3d = load_config(configs / "standing_wave_3d.yaml", [])
+    jobs = [ex.Job(name, cfg, None) for name, cfg in (("tank", tank), ("3d", wave_3d), ("finer", finer),
+                                                          ("tank2", tank))]
+    assert [j.name for j in ex.longest_first(jobs)] == ["3d", "finer", "tank", "tank2"]
