@@ -79,21 +79,18 @@ ISPH_STEP_COST = 5.0
 
 def estimated_work(cfg: Config) -> float:
     """A case's cost in particle-neighbour-steps, to start the longest cases first: (fluid + wall particles) x
-    the lattice's neighbours in the kernel support x t_end / dt, dt = cfl h / (c0 + U) for WCSPH (sound) and
-    cfl h / U for ISPH (the flow at its reference speed U), or the fixed dt; an ISPH step counts ISPH_STEP_COST."""
+    the lattice's neighbours in the kernel support x t_end / dt, dt the a-priori Courant limit (run/checks.py
+    time_step_limits: cfl h / (c0 + U) for WCSPH, cfl h / U for ISPH) or the fixed dt; an ISPH step counts
+    ISPH_STEP_COST."""
     from taichi_sph.config.schema import AUTO
+    from taichi_sph.run.checks import time_step_limits
     from taichi_sph.run.memory import particle_counts
     from taichi_sph.scene.lattice import lattice_neighbour_count
     from taichi_sph.sph.kernels import support_factor
     fluid, wall, _ = particle_counts(cfg)
     neighbours = lattice_neighbour_count(cfg.dim, cfg.particles.dx, support_factor(cfg.particles.kernel) * cfg.h)
-    isph = cfg.solver == "isph"
-    if cfg.time.dt != AUTO:
-        steps = cfg.time.t_end / float(cfg.time.dt)
-    else:
-        speed = cfg.expected_speed + (0.0 if isph else cfg.sound_speed)
-        steps = cfg.time.t_end * speed / (cfg.cfl * cfg.h)
-    return (fluid + wall) * neighbours * steps * (ISPH_STEP_COST if isph else 1.0)
+    dt = float(cfg.time.dt) if cfg.time.dt != AUTO else time_step_limits(cfg)["cfl"]
+    return (fluid + wall) * neighbours * cfg.time.t_end / dt * (ISPH_STEP_COST if cfg.solver == "isph" else 1.0)
 
 
 def longest_first(jobs: list[Job]) -> list[Job]:
