@@ -23,6 +23,7 @@ import os
 import platform
 import sys
 import time
+from collections import Counter
 from dataclasses import dataclass, replace
 from datetime import date
 from pathlib import Path
@@ -246,17 +247,12 @@ def runs_provenance(summaries: dict[str, dict]) -> str:
     """What measured the report's numbers: the code each run's summary names (runs from before summaries kept it:
     'code not recorded') with its count, and the runs' own wall time summed (with --resume the report's time is
     not theirs)."""
-    codes: dict[str, int] = {}
-    for s in summaries.values():
-        code = s.get("code") or "code not recorded"
-        codes[code] = codes.get(code, 0) + 1
+    codes = Counter(s.get("code") or "code not recorded" for s in summaries.values())
     wall = sum(float(s.get("wall_time_s") or 0.0) for s in summaries.values())
-    by = ", ".join(f"{code} ({n})" for code, n in sorted(codes.items(), key=lambda kv: -kv[1]))
-    schedules: dict[str, int] = {}
-    for s in summaries.values():
-        schedule = s.get("loop_schedule") or (s.get("ppe") or {}).get("loop_schedule")
-        if schedule:
-            schedules[schedule] = schedules.get(schedule, 0) + 1
+    by = ", ".join(f"{code} ({n})" for code, n in codes.most_common())
+    # WCSPH's schedule, or ISPH's PPE's
+    schedules = Counter(k for k in (s.get("loop_schedule") or (s.get("ppe") or {}).get("loop_schedule")
+                                    for s in summaries.values()) if k)
     loops = ("; their CPU loop schedule " + ", ".join(f"{k} ({n})" for k, n in sorted(schedules.items()))
              if schedules else "")
     return f"The runs: {len(summaries)}, by {by}; their wall time {wall:.0f} s in all (summed over runs){loops}."
