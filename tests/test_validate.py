@@ -15,7 +15,16 @@ from taichi_sph.cli.main import main
 from taichi_sph.config.loader import bundled_configs_dir, load_config
 from taichi_sph.run.provenance import code_version
 from taichi_sph.studies.compare import SOLVERS, derive_config
-from taichi_sph.studies.validate import SUMMARY_BEGIN, SUMMARY_END, report_markdown, runs_provenance, validation_scenes
+from taichi_sph.studies.validate import (
+    SUMMARY_BEGIN,
+    SUMMARY_END,
+    case_rows,
+    report_markdown,
+    runs_provenance,
+    scene_cases,
+    summary_table,
+    validation_scenes,
+)
 from taichi_sph.studies.validate_checks import CHECKS, QUICK, checks_for, quick_overrides
 from taichi_sph.validation import reference as ref
 from taichi_sph.validation.metrics.flows import CavityMetric
@@ -250,6 +259,32 @@ def test_the_standing_wave_amplitude_and_energy_have_issue_23s_bands():
     assert amplitude.passes(0.994) and not amplitude.passes(0.963) and not amplitude.passes(1.031)
     assert energy.passes(-0.0048) and energy.passes(0.0011) and not energy.passes(0.024) and not energy.passes(-0.011)
     assert energy.reference_text({}).endswith("target -0.01 to 0.005")
+
+
+def test_the_standing_wave_is_judged_at_two_resolutions_the_finer_2x():
+    """Issue 23 judges the wave at two resolutions, the finer 2x: the full report runs both solvers at the scene's
+    dx and at half of it, as cases of their own whose rows say the spacing; --quick runs the coarse one only."""
+    path = BUNDLED / "standing_wave_2d.yaml"
+    own = load_config(path).particles.dx
+    cases = scene_cases(path, quick=False, overrides=[])
+    assert [(c.name, c.solver, c.cfg.particles.dx) for c in cases] == [
+        ("standing_wave_2d-wcsph", "wcsph", own), ("standing_wave_2d-isph", "isph", own),
+        ("standing_wave_2d-wcsph-dx0.0125", "wcsph", own / 2), ("standing_wave_2d-isph-dx0.0125", "isph", own / 2)]
+    assert all(c.cfg.solver == c.solver for c in cases)
+    assert [c.name for c in scene_cases(path, quick=True, overrides=[])] == ["standing_wave_2d-wcsph",
+                                                                             "standing_wave_2d-isph"]
+    summary = {"status": "ok", "n_fluid": 12800, "wall_time_s": 216.0,
+               "errors": {"period_error": -0.0065, "period_asymmetry": 0.003, "amplitude_ratio": 0.983,
+                          "energy_change_per_period": 0.0105, "wave_energy_change_per_period": -0.0192}}
+    coarse, fine = case_rows(cases[0], summary), case_rows(cases[2], summary)
+    assert [r["metric"] for r in fine] == [r["metric"] + " at dx 0.0125" for r in coarse]
+    assert [r["status"] for r in fine] == ["misses target", "meets target", "misses target", "misses target"]
+    assert fine[0]["resolution"].startswith("dx 0.0125, 12800 fluid")
+    table = summary_table(coarse + fine)
+    assert sum(line.startswith("| `standing_wave_2d` | period error") for line in table) == 2
+    # a finer case that fails says so in its own row, not in the coarse one's
+    failed = case_rows(cases[3], {"status": "failed", "error": "boom"})
+    assert failed[0]["metric"] == "period error at dx 0.0125" and failed[0]["status"] == "failed: boom"
 
 
 def test_the_re100_cavitys_final_output_target_is_isphs():

@@ -7,7 +7,8 @@ report (default docs/validation_report.md; with --quick, renders/validate-quick/
 reference or published figure and target of validate_checks.py, resolution, wall time, status), in the order of
 the config files, and one figure per scene (validate_figures.py) in `<report stem>_figures/`. Scenes with a
 convergence study (validate_convergence.py: the Taylor-Green vortex at 4 spacings) add its runs and a section with
-the observed order. Only the header line carries a date, and every run's CPU loops run on one thread (LOOP_SCHEDULE),
+the observed order; scenes with finer spacings (validate_checks.FINER: the standing wave at d/80 besides d/40, as
+issue 23 judges it) add a case per solver and spacing whose rows say "at dx ...". Only the header line carries a date, and every run's CPU loops run on one thread (LOOP_SCHEDULE),
 so a rerun on the same machine and build rewrites the same table to the digit (another machine or build: up to
 run-to-run noise).
 
@@ -36,7 +37,7 @@ from taichi_sph.studies.compare import SOLVERS, batch_exit_code, derive_config
 from taichi_sph.studies.executor import Dispatch, Job, dispatch_from_args, is_finished, run_cases
 from taichi_sph.studies.sweep import parse_solvers
 from taichi_sph.studies.table import format_value, is_number
-from taichi_sph.studies.validate_checks import checks_for, quick_overrides
+from taichi_sph.studies.validate_checks import FINER, checks_for, quick_overrides
 from taichi_sph.studies.validate_convergence import (
     ORDER_TARGET,
     VERDICT_MARKS,
@@ -67,10 +68,11 @@ class Case:
     cfg: Config | None
     problem: str = ""        # why there is no config
     applicable: bool = True  # False: the scene's config refuses this solver
+    finer_dx: float | None = None  # a finer spacing than the scene's own (validate_checks.FINER)
 
     @property
     def name(self) -> str:
-        return f"{self.scene}-{self.solver}"
+        return f"{self.scene}-{self.solver}" + (f"-dx{self.finer_dx:.4g}" if self.finer_dx is not None else "")
 
 
 def validation_scenes(configs_dir: Path) -> list[Path]:
@@ -88,18 +90,23 @@ def validation_scenes(configs_dir: Path) -> list[Path]:
 
 
 def scene_cases(path: Path, *, quick: bool, overrides: list[str], solvers=SOLVERS) -> list[Case]:
-    """The solvers (both by default) of one scene, with the --quick settings and then the user's --set applied."""
+    """The solvers (both by default) of one scene, with the --quick settings and then the user's --set applied;
+    without --quick, then the same at each of the scene's finer spacings (validate_checks.FINER)."""
     try:
         cfg = load_config(path)
     except SPHError as e:
         return [Case(path.stem, s, None, f"invalid config: {e}") for s in solvers]
     extra = (quick_overrides(cfg) if quick else []) + list(overrides)
     cases = []
-    for solver in solvers:
-        try:
-            cases.append(Case(cfg.name, solver, derive_config(cfg, [f"solver={solver}"] + extra)))
-        except SPHError as e:
-            cases.append(Case(cfg.name, solver, None, str(e), applicable=not _solver_refused(cfg, extra)))
+    for dx in (None,) + (() if quick else FINER.get(cfg.name, ())):
+        spacing = [] if dx is None else [f"particles.dx={dx!r}"]
+        for solver in solvers:
+            try:
+                cases.append(Case(cfg.name, solver, derive_config(cfg, [f"solver={solver}"] + extra + spacing),
+                                  finer_dx=dx))
+            except SPHError as e:
+                cases.append(Case(cfg.name, solver, None, str(e), applicable=not _solver_refused(cfg, extra),
+                                  finer_dx=dx))
     return cases
 
 
@@ -136,9 +143,10 @@ def _problem_status(summary: dict) -> str:
 def case_rows(case: Case, summary: dict | None) -> list[dict]:
     """The table rows of one case: one per checked metric, or one saying why there are no numbers."""
     base = {"scene": case.scene, "solver": case.solver}
+    at = f" at dx {case.finer_dx:g}" if case.finer_dx is not None else ""  # a finer spacing's rows say so
     if case.cfg is None:
         status = "failed: " + case.problem if case.applicable else "not applicable: " + case.problem
-        return [dict(base, metric="-", ours="-", reference="-", resolution="-", wall="-", status=status,
+        return [dict(base, metric="-" + at, ours="-", reference="-", resolution="-", wall="-", status=status,
                      run_status="failed" if case.applicable else "n/a")]
     if summary is None:
         summary = {"status": "not run", "error": "the study stopped before this case"}
@@ -148,7 +156,7 @@ def case_rows(case: Case, summary: dict | None) -> list[dict]:
                   run_status=run_status)
     checks = [c for spec in case.cfg.metrics for c in checks_for(case.cfg, spec)]
     if run_status not in ("ok", "unstable") or not checks:
-        metric = "-" if not checks else checks[0].label
+        metric = ("-" if not checks else checks[0].label) + at
         status = _problem_status(summary) if run_status != "ok" else "no checked metric"
         return [dict(common, metric=metric, ours="-",
                      reference=checks[0].reference_text(errors, case.solver) if checks else "-",
@@ -164,7 +172,7 @@ def case_rows(case: Case, summary: dict | None) -> list[dict]:
         else:
             verdict = check.passes(value, case.solver)
             status = "no target" if verdict is None else "meets target" if verdict else "misses target"
-        rows.append(dict(common, metric=check.label, ours=format_value(value) if value is not None else "-",
+        rows.append(dict(common, metric=check.label + at, ours=format_value(value) if value is not None else "-",
                          reference=check.reference_text(errors, case.solver), status=status))
     return rows
 
@@ -277,7 +285,7 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
     t0 = time.perf_counter()
     code_version()  # the code as it is now, cached for the header: the report's own figures change tracked files
     cases = [c for path in scenes for c in scene_cases(path, quick=quick, overrides=list(overrides), solvers=solvers)]
-    studies = studies_for(cases, quick=quick)
+    studies = studies_for([c for c in cases if c.finer_dx is None], quick=quick)
     jobs = [Job(c.name, c.cfg, runs_dir / c.name) for c in cases if c.cfg is not None]
     jobs += [job for study in studies for job in study_jobs(study, runs_dir)]
     jobs = [replace(job, loop_schedule=LOOP_SCHEDULE) for job in jobs]
@@ -293,8 +301,8 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
     figures: dict[str, str] = {}
     for scene in dict.fromkeys(c.scene for c in cases):
         done = {c.solver: runs_dir / c.name for c in cases if c.scene == scene and c.cfg is not None
-                and summaries.get(c.name, {}).get("status") in ("ok", "unstable")}
-        cfg = next((c.cfg for c in cases if c.scene == scene and c.cfg is not None), None)
+                and c.finer_dx is None and summaries.get(c.name, {}).get("status") in ("ok", "unstable")}
+        cfg = next((c.cfg for c in cases if c.scene == scene and c.cfg is not None and c.finer_dx is None), None)
         if cfg is None or not done:
             continue
         try:
