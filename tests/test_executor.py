@@ -9,6 +9,7 @@ import pytest
 
 from taichi_sph.cli.main import main
 from taichi_sph.config.loader import bundled_configs_dir, load_config
+from taichi_sph.run.checks import time_step_limits
 from taichi_sph.studies import executor as ex
 from taichi_sph.studies.sweep import sweep
 
@@ -211,8 +212,14 @@ def test_a_pool_starts_the_longest_cases_first():
     work = ex.estimated_work
     assert 4 < work(finer) / work(tank) < 8  # 2x the steps, 4x the fluid and ~2x the wall particles (2D)
     assert work(longer) == pytest.approx(2 * work(tank))
-    speed = tank.expected_speed
-    assert work(isph) / work(tank) == pytest.approx(ex.ISPH_STEP_COST * speed / (speed + tank.sound_speed), rel=0.05)
+    steps = {cfg.solver: cfg.time.t_end / min(time_step_limits(cfg).values()) for cfg in (tank, isph)}
+    assert work(isph) / work(tank) == pytest.approx(ex.ISPH_STEP_COST * steps["isph"] / steps["wcsph"], rel=0.05)
+    # the smallest a-priori step counts: Poiseuille flow's is the viscous one, ~10^3 below its Courant step
+    poiseuille = load_config(configs / "poiseuille_2d.yaml", [])
+    limits = time_step_limits(poiseuille)
+    assert limits["viscous"] < limits["cfl"] / 100
+    assert work(poiseuille) == pytest.approx(work(load_config(configs / "poiseuille_2d.yaml",
+                                                              [f"time.dt={limits['viscous']!r}"])))
     wave_3d = load_config(configs / "standing_wave_3d.yaml", [])
     jobs = [ex.Job(name, cfg, None) for name, cfg in (("tank", tank), ("3d", wave_3d), ("finer", finer),
                                                           ("tank2", tank))]
