@@ -273,6 +273,9 @@ def test_the_standing_wave_is_judged_at_two_resolutions_the_finer_2x():
     assert all(c.cfg.solver == c.solver for c in cases)
     assert [c.name for c in scene_cases(path, quick=True, overrides=[])] == ["standing_wave_2d-wcsph",
                                                                              "standing_wave_2d-isph"]
+    # a user's --set dx at or below the finer one runs each case once
+    assert [c.name for c in scene_cases(path, quick=False, overrides=["particles.dx=0.0125"])] == [
+        "standing_wave_2d-wcsph", "standing_wave_2d-isph"]
     summary = {"status": "ok", "n_fluid": 12800, "wall_time_s": 216.0,
                "errors": {"period_error": -0.0065, "period_asymmetry": 0.003, "amplitude_ratio": 0.983,
                           "energy_change_per_period": 0.0105, "wave_energy_change_per_period": -0.0192}}

@@ -98,7 +98,7 @@ def scene_cases(path: Path, *, quick: bool, overrides: list[str], solvers=SOLVER
         return [Case(path.stem, s, None, f"invalid config: {e}") for s in solvers]
     extra = (quick_overrides(cfg) if quick else []) + list(overrides)
     cases = []
-    for dx in (None,) + (() if quick else FINER.get(cfg.name, ())):
+    for dx in (None,) + (() if quick else _finer_spacings(cfg, extra)):
         spacing = [] if dx is None else [f"particles.dx={dx!r}"]
         for solver in solvers:
             try:
@@ -108,6 +108,16 @@ def scene_cases(path: Path, *, quick: bool, overrides: list[str], solvers=SOLVER
                 cases.append(Case(cfg.name, solver, None, str(e), applicable=not _solver_refused(cfg, extra),
                                   finer_dx=dx))
     return cases
+
+
+def _finer_spacings(cfg: Config, extra: list[str]) -> tuple[float, ...]:
+    """The scene's FINER spacings below its own dx as the --set overrides leave it (a user's dx at or below one
+    would run the same case twice)."""
+    try:
+        own = derive_config(cfg, extra).particles.dx
+    except SPHError:
+        own = cfg.particles.dx
+    return tuple(dx for dx in FINER.get(cfg.name, ()) if dx < own)
 
 
 def _solver_refused(cfg: Config, extra: list[str]) -> bool:
