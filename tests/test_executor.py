@@ -202,8 +202,8 @@ def test_cluster_that_cannot_be_reached_exits_2_and_writes_nothing(capsys, monke
 
 
 def test_a_pool_starts_the_longest_cases_first():
-    """estimated_work: particles x neighbours x steps (WCSPH's dt at c0 + U, an ISPH step ISPH_STEP_COST); a pool
-    starts the cases in decreasing estimate, so the longest is not left to run alone at the end."""
+    """estimated_work: particles x neighbours x steps (dt the smallest a-priori limit, an ISPH step ISPH_STEP_COST);
+    a pool starts the cases in decreasing estimate, so the longest is not left to run alone at the end."""
     configs = bundled_configs_dir()
     tank = load_config(TANK, TINY)
     finer = load_config(TANK, TINY + ["particles.dx=0.025"])

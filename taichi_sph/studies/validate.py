@@ -8,9 +8,9 @@ reference or published figure and target of validate_checks.py, resolution, wall
 the config files, and one figure per scene (validate_figures.py) in `<report stem>_figures/`. Scenes with a
 convergence study (validate_convergence.py: the Taylor-Green vortex at 4 spacings) add its runs and a section with
 the observed order; scenes with finer spacings (validate_checks.FINER: the standing wave at d/80 besides d/40, as
-issue 23 judges it) add a case per solver and spacing whose rows say "at dx ...". Only the header line carries a date, and every run's CPU loops run on one thread (LOOP_SCHEDULE),
-so a rerun on the same machine and build rewrites the same table to the digit (another machine or build: up to
-run-to-run noise).
+issue 23 judges it) add a case per solver and spacing whose rows say "at dx ...". Only the header line carries a
+date, and every run's CPU loops run on one thread (LOOP_SCHEDULE), so a rerun on the same machine and build rewrites
+the same table to the digit (another machine or build: up to run-to-run noise).
 
 A run that fails or ends unstable is a row saying so; the command then exits as compare and sweep do
 (compare.batch_exit_code: 130 interrupted, 1 failed, 3 unstable, else 0). A missed target is a status in the
@@ -43,6 +43,7 @@ from taichi_sph.studies.validate_convergence import (
     VERDICT_MARKS,
     Study,
     plot_convergence,
+    spacing_case_name,
     studies_for,
     study_jobs,
     study_markdown,
@@ -72,7 +73,8 @@ class Case:
 
     @property
     def name(self) -> str:
-        return f"{self.scene}-{self.solver}" + (f"-dx{self.finer_dx:.4g}" if self.finer_dx is not None else "")
+        own = f"{self.scene}-{self.solver}"
+        return own if self.finer_dx is None else spacing_case_name(own, self.finer_dx)
 
 
 def validation_scenes(configs_dir: Path) -> list[Path]:
@@ -295,7 +297,8 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
     t0 = time.perf_counter()
     code_version()  # the code as it is now, cached for the header: the report's own figures change tracked files
     cases = [c for path in scenes for c in scene_cases(path, quick=quick, overrides=list(overrides), solvers=solvers)]
-    studies = studies_for([c for c in cases if c.finer_dx is None], quick=quick)
+    own_spacing = [c for c in cases if c.finer_dx is None]  # figures and studies: each scene's own dx
+    studies = studies_for(own_spacing, quick=quick)
     jobs = [Job(c.name, c.cfg, runs_dir / c.name) for c in cases if c.cfg is not None]
     jobs += [job for study in studies for job in study_jobs(study, runs_dir)]
     jobs = [replace(job, loop_schedule=LOOP_SCHEDULE) for job in jobs]
@@ -310,9 +313,9 @@ def validate(scenes: list[Path], out: Path, runs_dir: Path, *, quick: bool = Fal
     orders = [study_order_cell(study, study_points(study, summaries)) for study in studies]
     figures: dict[str, str] = {}
     for scene in dict.fromkeys(c.scene for c in cases):
-        done = {c.solver: runs_dir / c.name for c in cases if c.scene == scene and c.cfg is not None
-                and c.finer_dx is None and summaries.get(c.name, {}).get("status") in ("ok", "unstable")}
-        cfg = next((c.cfg for c in cases if c.scene == scene and c.cfg is not None and c.finer_dx is None), None)
+        done = {c.solver: runs_dir / c.name for c in own_spacing if c.scene == scene and c.cfg is not None
+                and summaries.get(c.name, {}).get("status") in ("ok", "unstable")}
+        cfg = next((c.cfg for c in own_spacing if c.scene == scene and c.cfg is not None), None)
         if cfg is None or not done:
             continue
         try:

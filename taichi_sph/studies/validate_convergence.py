@@ -31,6 +31,11 @@ STUDIES: dict[str, tuple[float, ...]] = {"taylor_green_2d": (0.02, 0.01, 1.0 / 1
 QUICK_STUDIES: dict[str, tuple[float, ...]] = {"taylor_green_2d": (0.05, 0.04, 1.0 / 30)}
 
 
+def spacing_case_name(base: str, dx: float) -> str:
+    """The run name of case `base` at another spacing (a study's or validate_checks.FINER's): `<base>-dx<dx>`."""
+    return f"{base}-dx{dx:.4g}"
+
+
 @dataclass(frozen=True)
 class Study:
     """One scene with one solver at a series of spacings: `base` is the scene's own case (its config and name)."""
@@ -42,7 +47,7 @@ class Study:
     dxs: tuple[float, ...]
 
     def case_name(self, dx: float) -> str:
-        return self.base_name if math.isclose(dx, self.base_cfg.particles.dx) else f"{self.base_name}-dx{dx:.4g}"
+        return self.base_name if math.isclose(dx, self.base_cfg.particles.dx) else spacing_case_name(self.base_name, dx)
 
     def metric(self) -> tuple[str, str] | None:
         """(summary error key, label) of the scene's first checked metric."""
