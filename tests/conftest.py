@@ -59,6 +59,7 @@ SLOW = {
     "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods[0.025]": "~10-35 s: to t = 5",
     "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods[0.0125]": "~25-50 s: 12.8k fluid, to t = 5",
     "test_standing_wave.py::test_wcsph_defaults_keep_the_wave_for_three_periods": "~70 s quiet, 134 s loaded: to t = 5",
+    "test_standing_wave.py::test_wcsph_on_a_hexagonal_packing_meets_the_wave_targets": "~60-120 s: to t = 5, walls at dx / 2",
     "test_standing_wave.py::test_the_wall_particles_in_the_shift_feed_the_wave": "~40 s: to t = 5",
     "test_standing_wave.py::test_isph_defaults_keep_the_3d_wave": "~30-45 s: 3D, 8k fluid, to t = 5",
     "test_standing_wave.py::test_the_fixed_surface_depth_makes_the_wave_slow": "~15-40 s: to t = 5",

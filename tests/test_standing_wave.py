@@ -40,6 +40,27 @@ def test_wcsph_defaults_keep_the_wave_for_three_periods(tmp_path):
     assert s["energy"]["growth"] < 0.1
 
 
+def test_wcsph_on_a_hexagonal_packing_meets_the_wave_targets(tmp_path):
+    """`particles.packing: hexagonal` (h = 2.1 dx, walls at dx / 2, docs/wcsph.md 'A hexagonal packing'), 5 wall
+    layers for its 4.2 dx support: period -0.21%, asymmetry 0.38%, amplitude 1.008, the wave's own energy (kinetic
+    peaks) +0.20% a period (dx 0.0125: -0.10%, 0.07%, 0.997, -0.20%). The same scene on the square lattice: -1.05% /
+    0.33% at the walls (the test above). Not met: the energy above rest, -7.3% a period, the column settling ~7 um a
+    period from its packed start (the rows' staggered ends at the side walls; the reason it is not the default)."""
+    import yaml
+    data = yaml.safe_load((bundled_configs_dir() / "standing_wave_2d.yaml").read_text())
+    data["bodies"][1]["layers"] = 5
+    cfg = config_from_dict(apply_overrides(data, ["solver=wcsph", "particles.packing=hexagonal"]))
+    assert (cfg.hdx, cfg.wall_refinement) == (2.1, 2)
+    s = Simulation(cfg, tmp_path, render=False, quiet=True).run().summary
+    assert s["status"] == "ok" and s["energy"]["guard"] == "on" and s["packing"] == "hexagonal"
+    e = s["errors"]
+    assert abs(e["period_error"]) < 0.005  # the issue's target (the square lattice: -1.05%)
+    assert abs(e["period_asymmetry"]) < 0.006
+    assert 0.97 < e["amplitude_ratio"] < 1.03
+    assert -0.01 < e["wave_energy_change_per_period"] < 0.005  # the issue's target
+    assert -0.12 < e["energy_change_per_period"] < 0.0  # the settling column (docstring)
+
+
 @pytest.mark.parametrize("dx", [0.025, 0.0125])
 def test_isph_defaults_keep_the_wave_for_three_periods(tmp_path, dx):
     """ISPH's defaults (`shifting.walls: auto` = the mirror since session 22, `isph.surface_depth: auto` = strained

@@ -177,11 +177,12 @@ def cmd_run(args) -> int:
         cfg = config_from_args(args)
     preflight(cfg, force=args.force, render=not args.no_render and cfg.render.enabled)
     if args.explain:
-        from taichi_sph.scene.bodies import build_particles
+        from taichi_sph.scene.bodies import build_particles, packing_note
         from taichi_sph.sph.features import Features
         arrays = build_particles(cfg)
         feats = Features.from_config(cfg, arrays.n_wall)
-        print(f"{cfg.name}: {cfg.solver}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles")
+        print(f"{cfg.name}: {cfg.solver}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles, "
+              f"{cfg.packing} packing{packing_note(cfg)}")
         print("compiled in: " + ", ".join(feats.compiled_in()))
         for c in a_priori_checks(cfg):
             print(f"warning: {c.message}")

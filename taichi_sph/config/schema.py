@@ -30,6 +30,10 @@ ISPH_SHARED_ALPHA_FACTOR = 0.5
 # session 26, docs/isph.md). In 3D 1.3 dx already gives ~74 neighbours (the 3D wave at 1.5: amplitude 0.974 but its
 # volume drifts, -17% of the wave's energy a period).
 DEFAULT_HDX = {"wcsph": {1: 2.0, 2: 2.0, 3: 2.0}, "isph": {1: 1.3, 2: 1.5, 3: 1.3}}
+# WCSPH's h / dx on a hexagonal packing: Wendland C2's hexagonal lattice sum is isotropic and its shear stiffness
+# crosses zero near 2.08 dx (scene/lattice.py lattice_shear_stiffness): 2.1 keeps it small and positive (+0.0075
+# against the square lattice's +0.026 at 2.0); at 2.0 (-0.036) the lattice rearranges into noise (docs/wcsph.md)
+HEXAGONAL_HDX = 2.1
 # the kernels a scene may choose, with their support radius / h (sph/kernels.py builds them)
 KERNEL_SUPPORT = {"cubic_spline": 2.0, "wendland_c2": 2.0, "wendland_c4": 2.0, "quintic_spline": 3.0, "gaussian": 3.0,
                   "poly6_spiky": 2.0}
@@ -56,12 +60,24 @@ class Domain:
 class Particles:
     dx: float = opt(0.02, "initial particle spacing", unit="m", positive=True)
     hdx: float | None = opt(None, "smoothing length over spacing, h = hdx * dx; None = the solver's default "
-                                  "(DEFAULT_HDX: 2.0 for WCSPH; ISPH 1.5 in 2D, 1.3 in 1D and 3D)", positive=True)
+                                  "(DEFAULT_HDX: 2.0 for WCSPH, 2.1 on a hexagonal packing with Wendland C2; ISPH 1.5 in 2D, 1.3 in "
+                                  "1D and 3D)",
+                              positive=True)
     kernel: str = opt("wendland_c2", "smoothing kernel", choices=tuple(KERNEL_SUPPORT))
     max_neighbors: int | str = opt(AUTO, "capacity of each particle's neighbour list ('auto': 2.5x the lattice count)")
     skin: float | str = opt(AUTO, "Verlet skin as a fraction of the support radius: lists cover support x (1 + skin) and "
                                   "are rebuilt only when a particle may have moved skin/2; 'auto' = 0.15 for WCSPH, "
                                   "0 (rebuild every step) for ISPH")
+    packing: str = opt("square", "how fluid bodies are filled: 'square' (a square/cubic lattice, spacing dx) or "
+                                 "'hexagonal' (2D: rows of a hexagonal lattice with dx^2 per particle, each box's rows "
+                                 "and columns fitted to its size; scene/lattice.py hexagonal_box). Under a hydrostatic "
+                                 "pressure a square lattice resists shear like a solid and a wall of the same lattice "
+                                 "pins the fluid sliding along it: WCSPH's standing wave runs -1.3% fast at 40 particles "
+                                 "over the depth. Hexagonal (WCSPH's h 2.1 dx, walls at dx / 2): -0.2%, every wave "
+                                 "target met at 40 and 80 particles over the depth, but a tank at rest reads its "
+                                 "pressure 6x worse (2.6% against 0.42%, physical keys only: the rows' staggered ends "
+                                 "at the side walls); not the default (docs/wcsph.md, 'A hexagonal packing')",
+                       choices=("square", "hexagonal"))
     neighbor_access: str = opt("lists", "how pair loops reach neighbours: 'lists' = a stored Verlet list per particle "
                                         "(max_neighbors i32 each); 'cells' = a walk over the 3^dim cells around the "
                                         "particle in the cell-sorted arrays, no lists stored (WCSPH only; same sums "
@@ -205,6 +221,11 @@ class Shifting:
 @dataclass(frozen=True)
 class Walls:
     slip: str = opt("no_slip", "wall condition for viscous terms (Adami et al. 2012 velocity extrapolation)", choices=("no_slip", "free_slip"))
+    refinement: int | str = opt(AUTO, "wall particles r times finer than the fluid's (spacing dx / r, the same wall "
+                                      "thickness, volume (dx / r)^dim each): fluid sliding along a wall feels the wall "
+                                      "lattice's ripple with period dx / r, and a hexagonal fluid's rows meet a wall face "
+                                      "at staggered distances that a wall at dx rattles (noise). 'auto' = 2 with a "
+                                      "hexagonal packing, 1 otherwise (WCSPH only: ISPH's wall rows assume 1)")
 
 
 @dataclass(frozen=True)
@@ -587,7 +608,9 @@ class Config:
     @property
     def hdx(self) -> float:
         """h / dx for this run's solver (isph.hdx, particles.hdx, or the solver's DEFAULT_HDX)."""
-        shared = self.particles.hdx if self.particles.hdx is not None else DEFAULT_HDX[self.solver][self.dim]
+        hexagonal = self.packing == "hexagonal" and self.solver == "wcsph" and self.particles.kernel == "wendland_c2"
+        default = HEXAGONAL_HDX if hexagonal else DEFAULT_HDX[self.solver][self.dim]
+        shared = self.particles.hdx if self.particles.hdx is not None else default
         return self.for_solver("hdx", shared)
 
     @property
@@ -605,6 +628,24 @@ class Config:
     @property
     def gravity_vector(self) -> tuple[float, ...]:
         return self.gravity if self.gravity is not None else (0.0,) * self.dim
+
+    @property
+    def packing(self) -> str:
+        """The fluid bodies' lattice, `particles.packing`."""
+        return self.particles.packing
+
+    @property
+    def wall_refinement(self) -> int:
+        """Wall particles per fluid spacing along each axis: `walls.refinement`, or (auto) 2 with a hexagonal
+        packing, 1 otherwise."""
+        if self.walls.refinement != AUTO:
+            return int(self.walls.refinement)
+        return 2 if self.packing == "hexagonal" else 1
+
+    @property
+    def wall_dx(self) -> float:
+        """The wall particles' spacing, dx / wall_refinement."""
+        return self.particles.dx / self.wall_refinement
 
     @property
     def has_gravity(self) -> bool:

@@ -133,6 +133,18 @@ def validate(cfg: Config, source: str) -> None:
     mn = cfg.particles.max_neighbors
     if mn != AUTO and (isinstance(mn, str) or mn < 1):
         raise ConfigError(f"must be a positive integer or 'auto', got {mn!r}", source=source, key="particles.max_neighbors")
+    ref = cfg.walls.refinement
+    if ref != AUTO and (isinstance(ref, (bool, str, float)) or ref < 1):
+        raise ConfigError(f"must be a positive integer or 'auto', got {ref!r}", source=source, key="walls.refinement")
+    if cfg.wall_refinement > 1 and cfg.solver != "wcsph":
+        raise ConfigError("refined walls are for WCSPH only: ISPH's pressure equation weighs each wall row as one fluid "
+                          "particle's volume; use walls.refinement: 1 (or auto)", source=source, key="walls.refinement")
+    if cfg.particles.packing == "hexagonal" and cfg.dim != 2:
+        raise ConfigError(f"the hexagonal packing is 2D only (this scene is {cfg.dim}D); use 'square' or 'auto'",
+                          source=source, key="particles.packing")
+    if cfg.packing == "hexagonal" and len(cfg.periodic) > 1 and cfg.periodic[1]:
+        raise ConfigError("a hexagonal packing's rows are staggered along y, which a periodic y axis would break; use "
+                          "particles.packing: square", source=source, key="particles.packing")
     for a, per in enumerate(cfg.periodic):
         if per:
             length = cfg.domain.hi[a] - cfg.domain.lo[a]

@@ -17,7 +17,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from taichi_sph.config.schema import AUTO, Body, Config
-from taichi_sph.scene.lattice import axis_points, lattice_neighbour_count
+from taichi_sph.scene.lattice import auto_neighbour_capacity, axis_points, hexagonal_box, hexagonal_sphere
 from taichi_sph.sph.kernels import support_factor
 
 GIB = float(1 << 30)
@@ -105,11 +105,19 @@ def body_points(body: Body, dx: float, layers: int) -> tuple[int, int]:
 
 def particle_counts(cfg: Config) -> tuple[int, int, int]:
     """(fluid, wall, largest lattice temporary) for the config, without building a particle.
-    Fluid particles on wall sites (removed by the builder) are still counted: an upper bound."""
+    Fluid particles on wall sites (removed by the builder) are still counted: an upper bound. Walls at their own
+    spacing (dx / walls.refinement); a hexagonal packing's fluid (2D only) counted by building its points."""
     dx = cfg.particles.dx
     fluid = wall = largest = 0
     for body in cfg.bodies:
-        count, lattice = body_points(body, dx, cfg.wall_layers(body))
+        if body.type.startswith("fluid") and cfg.packing == "hexagonal":
+            pts = (hexagonal_box(body.lo, body.hi, dx)[0] if body.type == "fluid_block"
+                   else hexagonal_sphere(body.center, body.radius, dx))
+            count = lattice = len(pts)
+        elif body.type.startswith("fluid"):
+            count, lattice = body_points(body, dx, cfg.wall_layers(body))
+        else:
+            count, lattice = body_points(body, cfg.wall_dx, cfg.wall_layers(body) * cfg.wall_refinement)
         largest = max(largest, lattice)
         if body.type.startswith("fluid"):
             fluid += count
@@ -126,7 +134,7 @@ def neighbour_capacity(cfg: Config) -> int:
     if cfg.particles.max_neighbors != AUTO:
         return int(cfg.particles.max_neighbors)
     radius = support_factor(cfg.particles.kernel) * cfg.h * (1.0 + cfg.skin_fraction)
-    return max(8, int(math.ceil(2.5 * lattice_neighbour_count(cfg.dim, cfg.particles.dx, radius))))
+    return auto_neighbour_capacity(cfg, radius)
 
 
 def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bool) -> float:

@@ -31,7 +31,7 @@ from taichi_sph.run.output import Progress, RunFolder
 from taichi_sph.run.provenance import code_version
 from taichi_sph.run.runtime import current_arch_name, init_taichi
 from taichi_sph.run.summary import conservation, dt_range, step_timing
-from taichi_sph.scene.bodies import FLUID, build_particles, wall_crossings
+from taichi_sph.scene.bodies import FLUID, build_particles, packing_note, wall_crossings
 from taichi_sph.solvers.registry import make_solver
 from taichi_sph.validation import diagnostics as diag
 from taichi_sph.validation.metrics import make_metrics, probe_value
@@ -118,7 +118,8 @@ class Simulation:
             raise UsageError(f"the checkpoint does not fit this solver ({missing}); --overwrite starts afresh")
         folder, loop = self._run_folder(resume)
         self.log(f"{cfg.name}: {solver.name}, dim {cfg.dim}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles, "
-                 f"dx {cfg.particles.dx:g}, h {cfg.h:.4g}, c0 {solver.c0:.4g} m/s, arch {current_arch_name()}")
+                 f"dx {cfg.particles.dx:g} ({cfg.packing}{packing_note(cfg)}), h {cfg.h:.4g}, c0 {solver.c0:.4g} m/s, "
+                 f"arch {current_arch_name()}")
         try:
             solver.prepare()
         except SPHError:
@@ -406,6 +407,7 @@ class Simulation:
             "particle_order": self.order_log.summary(),
             "c0": solver.c0 if solver.name == "wcsph" else None,
             "features": solver.features.compiled_in(),
+            "packing": cfg.packing, "wall_refinement": cfg.wall_refinement,
             "arch": current_arch_name(), "precision": cfg.precision, "code": code_version(),
             "neighbours_max": solver.nsearch.max_count() if solver.nsearch.lists else None,
             "neighbour_capacity": solver.max_neighbors if solver.nsearch.lists else None,

@@ -1,4 +1,5 @@
-"""Bodies -> particles: lattice fluid blocks and spheres, layered wall boxes, velocity expressions.
+"""Bodies -> particles: lattice fluid blocks and spheres (square or hexagonal packing), layered wall boxes
+(spacing dx / walls.refinement), velocity expressions.
 
 Everything here is numpy at set-up time; the solvers receive plain arrays.
 """
@@ -12,7 +13,7 @@ import numpy as np
 from taichi_sph.config.expressions import evaluate_expression
 from taichi_sph.config.schema import Body, Config
 from taichi_sph.errors import ConfigError
-from taichi_sph.scene.lattice import lattice_box, lattice_sphere
+from taichi_sph.scene.lattice import hexagonal_box, hexagonal_sphere, lattice_box, lattice_sphere
 
 FLUID = 0
 WALL = 1
@@ -40,6 +41,11 @@ class ParticleArrays:
     @property
     def n_wall(self) -> int:
         return int(np.count_nonzero(self.kind == WALL))
+
+
+def packing_note(cfg: Config) -> str:
+    """', walls at dx / r' where the walls are refined, else ''."""
+    return f", walls at dx / {cfg.wall_refinement}" if cfg.wall_refinement > 1 else ""
 
 
 def wall_box_points(body: Body, dx: float, layers: int) -> np.ndarray:
@@ -93,17 +99,24 @@ def build_particles(cfg: Config) -> ParticleArrays:
     gmag = float(np.linalg.norm(g))
     c0 = cfg.sound_speed
     B = tait_b(cfg.fluid.rho0, c0, cfg.fluid.gamma)
-    xs, vs, kinds, ps = [], [], [], []
+    hexagonal = cfg.packing == "hexagonal"
+    wall_dx, refinement = cfg.wall_dx, cfg.wall_refinement
+    xs, vs, kinds, ps, volumes = [], [], [], [], []
     for i, body in enumerate(cfg.bodies):
         key = f"bodies[{i}]"
-        if body.type == "fluid_block":
+        volume, row = dx ** cfg.dim, dx  # each particle's volume; the spacing of the rows along the last axis
+        if body.type == "fluid_block" and hexagonal:
+            pts, volume, row = hexagonal_box(body.lo, body.hi, dx)
+        elif body.type == "fluid_block":
             pts = lattice_box(body.lo, body.hi, dx)
+        elif body.type == "fluid_sphere" and hexagonal:
+            pts = hexagonal_sphere(body.center, body.radius, dx)
         elif body.type == "fluid_sphere":
             pts = lattice_sphere(body.center, body.radius, dx)
         elif body.type == "wall_box":
-            pts = wall_box_points(body, dx, cfg.wall_layers(body))
+            pts, volume = wall_box_points(body, wall_dx, cfg.wall_layers(body) * refinement), wall_dx ** cfg.dim
         else:
-            pts = lattice_box(body.lo, body.hi, dx)
+            pts, volume = lattice_box(body.lo, body.hi, wall_dx), wall_dx ** cfg.dim
         if len(pts) == 0:
             raise ConfigError(f"{body.type} holds no particle at dx = {dx:g}; make it larger or dx smaller", key=key)
         kind = FLUID if body.type.startswith("fluid") else WALL
@@ -111,10 +124,11 @@ def build_particles(cfg: Config) -> ParticleArrays:
         if kind == FLUID and body.hydrostatic and gmag > 0:
             # depth measured along g from the body's highest point: p = rho0 |g| depth
             heights = -(pts @ g) / gmag
-            p = cfg.fluid.rho0 * gmag * (heights.max() + 0.5 * dx - heights)
+            p = cfg.fluid.rho0 * gmag * (heights.max() + 0.5 * row - heights)
         if kind == FLUID and body.pressure is not None:
             p = p + body_pressure(body, pts, f"{key}.pressure", rng)
         xs.append(pts)
+        volumes.append(np.full(len(pts), volume))
         vs.append(body_velocity(body, pts, key, rng))
         kinds.append(np.full(len(pts), kind, dtype=np.int32))
         ps.append(p)
@@ -122,28 +136,29 @@ def build_particles(cfg: Config) -> ParticleArrays:
     v = np.concatenate(vs)
     kind = np.concatenate(kinds)
     p = np.concatenate(ps)
+    volume = np.concatenate(volumes)
     order = np.argsort(kind, kind="stable")
-    x, v, kind, p = x[order], v[order], kind[order], p[order]
-    x, v, kind, p = _remove_overlaps(x, v, kind, p, dx)
+    x, v, kind, p, volume = x[order], v[order], kind[order], p[order], volume[order]
+    keep = _overlap_free(x, kind, min(dx, wall_dx))
+    x, v, kind, p, volume = x[keep], v[keep], kind[keep], p[keep], volume[keep]
     rho = cfg.fluid.rho0 * (1.0 + p / B) ** (1.0 / cfg.fluid.gamma) if cfg.solver == "wcsph" else np.full(len(p), cfg.fluid.rho0)
-    # every particle starts with the lattice volume dx^dim, so m = rho dx^dim (wall masses follow their
-    # extrapolated density during the run: see SolverBase.adami_wall_extrapolation)
-    mass = rho * dx ** cfg.dim
+    # every particle starts with its lattice's volume (dx^dim; a hexagonal box's a' b'; a wall's (dx / r)^dim), so
+    # m = rho V (wall masses follow their extrapolated density during the run: see SolverBase.adami_wall_extrapolation)
+    mass = rho * volume
     return ParticleArrays(x=x, v=v, rho=rho, p=p, mass=mass, kind=kind)
 
 
-def _remove_overlaps(x, v, kind, p, dx):
-    """Drop fluid particles that sit on a wall particle (same dx/2 cell): walls win."""
+def _overlap_free(x: np.ndarray, kind: np.ndarray, dx: float) -> np.ndarray:
+    """The particles to keep: not a fluid particle that sits on a wall particle (same dx/2 cell): walls win."""
     walls = kind == WALL
     if not walls.any():
-        return x, v, kind, p
+        return np.ones(len(kind), dtype=bool)
     cell = np.round(x / (0.5 * dx)).astype(np.int64)  # lattice points closer than dx/4 share a cell
     cell -= cell.min(axis=0)
     span = cell.max(axis=0) + 1
     code = np.ravel_multi_index(tuple(cell.T), tuple(span))
     drop = (kind == FLUID) & np.isin(code, code[walls])
-    keep = ~drop
-    return x[keep], v[keep], kind[keep], p[keep]
+    return ~drop
 
 
 def wall_crossings(x: np.ndarray, kind: np.ndarray, cfg: Config) -> int:

@@ -1,5 +1,5 @@
-"""Square/cubic lattices: the points bodies are filled with, and the lattice sums the solvers calibrate
-against (neighbour counts, the full-support kernel sum)."""
+"""Square/cubic and (2D) hexagonal lattices: the points bodies are filled with, and the lattice sums the solvers
+calibrate against (neighbour counts, the full-support kernel sum)."""
 
 from __future__ import annotations
 
@@ -23,6 +23,49 @@ def lattice_box(lo: tuple[float, ...], hi: tuple[float, ...], dx: float) -> np.n
     return np.stack([g.ravel() for g in grids], axis=1)
 
 
+def hexagonal_spacing(dx: float) -> tuple[float, float]:
+    """(a, b): the spacing along a row and between rows of the hexagonal lattice with dx^2 per particle,
+    a = dx sqrt(2 / sqrt(3)) = 1.0746 dx, b = a sqrt(3) / 2 = 0.9306 dx."""
+    a = dx * math.sqrt(2.0 / math.sqrt(3.0))
+    return a, a * math.sqrt(3.0) / 2.0
+
+
+def hexagonal_rows(origin: tuple[float, float], a: float, b: float, lo: tuple[float, ...],
+                   hi: tuple[float, ...]) -> np.ndarray:
+    """The points of the hexagonal lattice with rows along x, row j at origin_y + (j + 1/2) b, point i of an even
+    row at origin_x + (i + 1/4) a and of an odd row at origin_x + (i + 3/4) a, strictly inside [lo, hi]."""
+    j = np.arange(math.floor((lo[1] - origin[1]) / b) - 1, math.ceil((hi[1] - origin[1]) / b) + 2)
+    i = np.arange(math.floor((lo[0] - origin[0]) / a) - 1, math.ceil((hi[0] - origin[0]) / a) + 2)
+    jj, ii = np.meshgrid(j, i, indexing="ij")
+    x = origin[0] + (ii + np.where(jj % 2 == 0, 0.25, 0.75)) * a
+    y = origin[1] + (jj + 0.5) * b
+    pts = np.stack([x.ravel(), y.ravel()], axis=1)
+    keep = (pts[:, 0] > lo[0]) & (pts[:, 0] < hi[0]) & (pts[:, 1] > lo[1]) & (pts[:, 1] < hi[1])
+    return pts[keep]
+
+
+def hexagonal_box(lo: tuple[float, ...], hi: tuple[float, ...], dx: float) -> tuple[np.ndarray, float, float]:
+    """A 2D box filled with rows of a hexagonal lattice: round(W / a) points a row, round(H / b) rows, the spacings
+    stretched to fit the box exactly (a' = W / nx, b' = H / ny: the box's volume is the particles'). Rows run along
+    x, so the bottom and the top (a free surface) are flat; a row's ends sit a'/4 and 3a'/4 inside the side faces,
+    alternating. Returns (points, the volume a' b' of each, the row spacing b')."""
+    a, b = hexagonal_spacing(dx)
+    width, height = hi[0] - lo[0], hi[1] - lo[1]
+    a_fit = width / max(1, int(round(width / a)))
+    b_fit = height / max(1, int(round(height / b)))
+    return hexagonal_rows((lo[0], lo[1]), a_fit, b_fit, lo, hi), a_fit * b_fit, b_fit
+
+
+def hexagonal_sphere(center: tuple[float, ...], radius: float, dx: float) -> np.ndarray:
+    """Hexagonal lattice points (rows as hexagonal_box's, centred on `center`, so that no point lies on the centre's
+    row or column) within radius - b/2 of the centre of a 2D circle."""
+    a, b = hexagonal_spacing(dx)
+    r = radius + 2.0 * a
+    pts = hexagonal_rows((center[0], center[1]), a, b, (center[0] - r, center[1] - r), (center[0] + r, center[1] + r))
+    keep = np.linalg.norm(pts - np.asarray(center[:2]), axis=1) <= radius - 0.5 * b + 1e-12
+    return pts[keep]
+
+
 def lattice_sphere(center: tuple[float, ...], radius: float, dx: float) -> np.ndarray:
     """Cell-centred lattice points (spacing dx, center + (i + 1/2) dx, as in a fluid_block) within
     radius - dx/2 of the centre of a sphere/circle/segment.
@@ -39,24 +82,29 @@ def lattice_sphere(center: tuple[float, ...], radius: float, dx: float) -> np.nd
     return pts[keep] + np.asarray(center)
 
 
-def lattice_distances(dim: int, dx: float, reach: float) -> np.ndarray:
-    """|x_a - x_b| from one site of an unbounded square/cubic lattice (spacing dx) to every site of the
-    cube of half-width reach + dx around it, the site itself (r = 0) included."""
+def lattice_distances(dim: int, dx: float, reach: float, packing: str = "square") -> np.ndarray:
+    """|x_a - x_b| from one site of an unbounded square/cubic lattice (spacing dx), or (2D) the hexagonal lattice with
+    dx^2 per site, to every site of the box of half-width ~reach + dx around it, the site itself (r = 0) included."""
+    if packing == "hexagonal" and dim == 2:
+        a, b = hexagonal_spacing(dx)
+        m = int(math.ceil(reach / b)) + 2
+        pts = hexagonal_rows((-0.25 * a, -0.5 * b), a, b, (-m * a, -m * b), (m * a, m * b))
+        return np.sqrt(np.sum(pts ** 2, axis=1))
     n = int(math.ceil(reach / dx)) + 1
     offs = np.arange(-n, n + 1) * dx
     grids = np.meshgrid(*([offs] * dim), indexing="ij")
     return np.sqrt(sum(g.ravel() ** 2 for g in grids))
 
 
-def lattice_neighbour_count(dim: int, dx: float, radius: float) -> int:
+def lattice_neighbour_count(dim: int, dx: float, radius: float, packing: str = "square") -> int:
     """Lattice neighbours of one site closer than `radius` (the site itself not counted)."""
-    return int(np.count_nonzero(lattice_distances(dim, dx, radius) < radius)) - 1
+    return int(np.count_nonzero(lattice_distances(dim, dx, radius, packing) < radius)) - 1
 
 
 def lattice_kernel_sum(cfg: Config, w) -> float:
     """sum_b W(x_a - x_b) V_b over a full lattice (used to flag free-surface particles)."""
     dx = cfg.particles.dx
-    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h)
+    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h, cfg.packing)
     return float(np.sum(w(r)) * dx ** cfg.dim)
 
 
@@ -68,7 +116,7 @@ def lattice_gradient_sum(cfg: Config, dw_dr, eta2: float = 0.0) -> float:
     Brookshaw / Shao & Lo Laplacian of a quadratic field.
     """
     dx = cfg.particles.dx
-    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h)
+    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h, cfg.packing)
     r = r[r > 0]
     return float(np.sum(-r * dw_dr(r) * r * r / (r * r + eta2)) * dx ** cfg.dim / cfg.dim)
 
@@ -77,7 +125,7 @@ def lattice_laplacian_weight_sum(cfg: Config, dw_dr, eta2: float) -> float:
     """sum_b V_b (-r dW/dr) / (r^2 + eta^2) over a full lattice (b != a): the Shao & Lo diagonal sum_b K_ab of a
     particle inside the lattice is 2 V_a / rho0 times this (K_ab = -2 V_b / rho0 (r dW/dr) / (r^2 + eta^2))."""
     dx = cfg.particles.dx
-    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h)
+    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h, cfg.packing)
     r = r[r > 0]
     return float(np.sum(-r * dw_dr(r) / (r * r + eta2)) * dx ** cfg.dim)
 
@@ -86,11 +134,19 @@ def max_neighbors_for(cfg: Config, support_radius: float) -> int:
     """Neighbour-list capacity: the configured value, or 2.5x the lattice count within the support."""
     if cfg.particles.max_neighbors != AUTO:
         return int(cfg.particles.max_neighbors)
-    lattice = lattice_neighbour_count(cfg.dim, cfg.particles.dx, support_radius)
-    return max(8, int(math.ceil(2.5 * lattice)))
+    return auto_neighbour_capacity(cfg, support_radius)
 
 
-def lattice_shear_stiffness(w, dim: int, dx: float, reach: float, step: float = 1e-3) -> tuple[float, float]:
+def auto_neighbour_capacity(cfg: Config, radius: float) -> int:
+    """2.5x the lattice count within `radius`, times (1 + r^dim) / 2 with walls r times finer (half a wall particle's
+    support in the wall, holding r^dim as many)."""
+    lattice = lattice_neighbour_count(cfg.dim, cfg.particles.dx, radius, cfg.packing)
+    walls = max(1.0, 0.5 * (1.0 + cfg.wall_refinement ** cfg.dim))
+    return max(8, int(math.ceil(2.5 * lattice * walls)))
+
+
+def lattice_shear_stiffness(w, dim: int, dx: float, reach: float, step: float = 1e-3,
+                            packing: str = "square") -> tuple[float, float]:
     """The curvature of the kernel sum S = sum_b W(x_a - x_b) V_b of a square/cubic lattice under an area-preserving
     shear, relative to S: (1/S) d^2 S / d eps^2 for a pure shear along the axes (x stretched by 1 + eps, y shrunk
     by the same factor) and along the diagonals (the simple shear x += 2 eps y, whose strain is eps along the
@@ -98,9 +154,14 @@ def lattice_shear_stiffness(w, dim: int, dx: float, reach: float, step: float = 
     swings in sign with h / dx. WCSPH's continuity density is the summation density plus a fixed offset, so this
     curvature times the pressure is an elastic shear modulus of the particle arrangement (docs/wcsph.md, "The
     period bias measured against the lattice's shear stiffness")."""
-    n = int(math.ceil(reach / dx)) + 2
-    offs = np.arange(-n, n + 1) * dx
-    pts = np.stack([g.ravel() for g in np.meshgrid(*([offs] * dim), indexing="ij")])
+    if packing == "hexagonal":
+        a, b = hexagonal_spacing(dx)
+        m = int(math.ceil(reach / b)) + 3
+        pts = hexagonal_rows((-0.25 * a, -0.5 * b), a, b, (-m * a, -m * b), (m * a, m * b)).T
+    else:
+        n = int(math.ceil(reach / dx)) + 2
+        offs = np.arange(-n, n + 1) * dx
+        pts = np.stack([g.ravel() for g in np.meshgrid(*([offs] * dim), indexing="ij")])
 
     def kernel_sum(f: np.ndarray) -> float:
         return float(np.sum(w(np.linalg.norm(f @ pts, axis=0))))

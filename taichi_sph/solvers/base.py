@@ -62,7 +62,7 @@ class SolverBase(KinematicWalls, CheckpointState):
         self.consistent_laplacian = cfg.fluid.laplacian == "consistent" and cfg.solver == "wcsph"
         if self.renormalised_laplacian:
             self.visc_norm = 1.0  # the sum is divided by each particle's own moment instead
-        self.lattice_volume = self.dx ** cfg.dim
+        self.lattice_volume = cfg.wall_dx ** cfg.dim  # a wall particle's volume: (dx / walls.refinement)^dim
         self.inv_lattice_sum = 1.0 / lattice_kernel_sum(cfg, self.kernel.w_np)
         self.particles = ParticleFields(arrays, cfg.dim)
         self.n = self.particles.n
@@ -271,7 +271,7 @@ class SolverBase(KinematicWalls, CheckpointState):
                     P.p[a] = p
                     rho_w = tait_density(p, self.rho0, self.B, self.gamma, self.p_background)
                     P.rho[a] = rho_w
-                    P.mass[a] = rho_w * self.lattice_volume  # a wall particle stands for dx^dim of ghost fluid
+                    P.mass[a] = rho_w * self.lattice_volume  # a wall particle stands for its (dx / r)^dim of ghost fluid
                     if ti.static(self.features.no_slip):
                         self.v_ghost[a] = adami_wall_velocity(P.v[a], sum_vw, sum_w)
 

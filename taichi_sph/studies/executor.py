@@ -90,7 +90,8 @@ def estimated_work(cfg: Config) -> float:
     from taichi_sph.scene.lattice import lattice_neighbour_count
     from taichi_sph.sph.kernels import support_factor
     fluid, wall, _ = particle_counts(cfg)
-    neighbours = lattice_neighbour_count(cfg.dim, cfg.particles.dx, support_factor(cfg.particles.kernel) * cfg.h)
+    neighbours = lattice_neighbour_count(cfg.dim, cfg.particles.dx, support_factor(cfg.particles.kernel) * cfg.h,
+                                         cfg.packing)
     dt = float(cfg.time.dt) if cfg.time.dt != AUTO else min(time_step_limits(cfg).values())
     return (fluid + wall) * neighbours * cfg.time.t_end / dt * (ISPH_STEP_COST if cfg.solver == "isph" else 1.0)
 

@@ -18,7 +18,7 @@ import numpy as np
 
 from taichi_sph.config import Config
 from taichi_sph.scene.bodies import tait_b
-from taichi_sph.scene.lattice import lattice_sphere
+from taichi_sph.scene.lattice import hexagonal_spacing, hexagonal_sphere, lattice_sphere
 from taichi_sph.validation import diagnostics
 
 
@@ -103,17 +103,34 @@ def _container(cfg: Config):
     return lo, hi
 
 
-def _layer_heights(cfg: Config, n: int, axis: int) -> tuple[np.ndarray, int]:
-    """Heights above the floor (along -g) of n lattice sites stacked layer by layer in the container, and the
-    sites per layer."""
+def _layer_heights(cfg: Config, n: int, axis: int) -> tuple[np.ndarray, int, float]:
+    """Heights above the floor (along -g) of n lattice sites stacked layer by layer in the container, the sites per
+    layer and the layers' spacing (a hexagonal packing's rows, when gravity is across them: a b apart, a across)."""
     dx = cfg.particles.dx
     lo, hi = _container(cfg)
+    hexagonal = cfg.packing == "hexagonal" and axis == cfg.dim - 1
+    along = hexagonal_spacing(dx)[0] if hexagonal else dx
     per_layer = 1
     for a in range(cfg.dim):
         if a != axis:
-            per_layer *= max(1, int(round((hi[a] - lo[a]) / dx)))
+            per_layer *= max(1, int(round((hi[a] - lo[a]) / along)))
+    spacing = dx
+    if hexagonal:  # rows fitted as the boxes' (hexagonal_box): the fluid's volume over the floor, row by row
+        spacing = _fluid_volume(cfg) / ((hi[0] - lo[0]) * n / per_layer)
     layer = np.arange(n) // per_layer
-    return (layer + 0.5) * dx, per_layer
+    return (layer + 0.5) * spacing, per_layer, spacing
+
+
+def _fluid_volume(cfg: Config) -> float:
+    """The fluid bodies' volume as the particles hold it: a box's own (a hexagonal box fits its rows to it), a
+    sphere's particles' dx^dim each."""
+    total = 0.0
+    for body in cfg.bodies:
+        if body.type == "fluid_block":
+            total += math.prod(h - l for l, h in zip(body.lo, body.hi))
+        elif body.type == "fluid_sphere":
+            total += len(hexagonal_sphere(body.center, body.radius, cfg.particles.dx)) * cfg.particles.dx ** cfg.dim
+    return total
 
 
 def rest_state(cfg: Config, mass: np.ndarray) -> RestState:
@@ -138,8 +155,8 @@ def rest_state(cfg: Config, mass: np.ndarray) -> RestState:
         sign = -1.0 if gvec[axis] < 0 else 1.0
         lo, hi = _container(cfg)
         floor = lo[axis] if sign < 0 else hi[axis]
-        height, per_layer = _layer_heights(cfg, n, axis)
-        top = (n / per_layer) * cfg.particles.dx  # the settled surface above the floor
+        height, per_layer, spacing = _layer_heights(cfg, n, axis)
+        top = (n / per_layer) * spacing  # the settled surface above the floor
         coordinate = floor - sign * height  # along the axis
         potential = float(np.sum(m * g * (-sign) * coordinate))
         if tilted:
