@@ -122,3 +122,57 @@ def test_the_wave_scene_on_a_hexagonal_packing_has_walls_at_half_the_spacing():
     rest = rest_state(cfg, arrays.mass[fluid])
     potential = float(np.sum(arrays.mass[fluid] * 9.81 * arrays.x[fluid, 1]))
     assert rest.potential == pytest.approx(potential, rel=1e-9)
+
+
+def small_tank(**particles) -> dict:
+    """A 0.4 m x 0.3 m pool in a free-slip box, dx 0.02 (~300 fluid particles), a shear flow u = 0.1 y to start."""
+    return {
+        "name": "small_tank", "dim": 2, "gravity": [0.0, -9.81],
+        "domain": {"lo": [-0.15, -0.15], "hi": [0.55, 0.6]},
+        "particles": {"dx": 0.02, **particles},
+        "fluid": {"rho0": 1000.0, "reference_speed": 2.5},
+        "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.4, 0.3], "hydrostatic": True,
+                    "velocity": ["0.1 * y", "0.0"]},
+                   {"type": "wall_box", "lo": [0.0, 0.0], "hi": [0.4, 0.45], "open_top": True}],
+        "walls": {"slip": "free_slip"},
+        "time": {"t_end": 0.01},
+    }
+
+
+def test_settling_moves_the_packed_start_and_restarts_it_with_the_bodies_velocities():
+    from taichi_sph.config.loader import config_from_dict
+    from taichi_sph.run.runtime import init_taichi
+    from taichi_sph.run.settle import SETTLE_ALPHA, settle_particles, settling_config
+
+    cfg = config_from_dict(small_tank(packing="hexagonal", settle=0.05))
+    scfg = settling_config(cfg)
+    assert scfg.time.t_end == 0.05 and scfg.artificial_viscosity[0] == SETTLE_ALPHA and not scfg.viscosity_switch
+    init_taichi("cpu", cfg.precision)
+    packed = build_particles(cfg)
+    log: list[str] = []
+    settled = settle_particles(cfg, packed, log.append)
+    fluid, wall = packed.kind == FLUID, packed.kind == WALL
+    moved = np.linalg.norm(settled.x[fluid] - packed.x[fluid], axis=1) / 0.02
+    assert 1e-4 < moved.max() < 0.5  # the rows' ends at the side walls find their place: a fraction of dx
+    assert np.array_equal(settled.x[wall], packed.x[wall]) and np.array_equal(settled.mass, packed.mass)
+    assert np.allclose(settled.v[fluid, 0], 0.1 * settled.x[fluid, 1]) and np.all(settled.v[fluid, 1] == 0.0)
+    assert not np.array_equal(settled.rho[fluid], packed.rho[fluid])  # the densities settled with them
+    assert len(log) == 1 and "settled 0.05 s at rest" in log[0]
+    # the energy the arrangement gave up comes off the rest state's stacked estimate
+    assert settled.released > 0.0
+    m = packed.mass[fluid]
+    assert (rest_state(cfg, m, settled.released).potential
+            == pytest.approx(rest_state(cfg, m).potential - settled.released, abs=1e-9))
+
+
+@pytest.mark.parametrize("solver, wall_velocity, fragment", [
+    ("isph", None, "WCSPH only"),
+    ("wcsph", [0.1, 0.0], "moving walls"),
+])
+def test_settling_config_errors(solver, wall_velocity, fragment):
+    from taichi_sph.config.loader import config_from_dict
+
+    data = small_tank(settle=0.05)
+    data["solver"], data["bodies"][1]["velocity"] = solver, wall_velocity
+    with pytest.raises(ConfigError, match=fragment):
+        config_from_dict(data)

@@ -73,11 +73,19 @@ class Particles:
                                  "and columns fitted to its size; scene/lattice.py hexagonal_box). Under a hydrostatic "
                                  "pressure a square lattice resists shear like a solid and a wall of the same lattice "
                                  "pins the fluid sliding along it: WCSPH's standing wave runs -1.3% fast at 40 particles "
-                                 "over the depth. Hexagonal (WCSPH's h 2.1 dx, walls at dx / 2): -0.2%, every wave "
-                                 "target met at 40 and 80 particles over the depth, but a tank at rest reads its "
-                                 "pressure 6x worse (2.6% against 0.42%, physical keys only: the rows' staggered ends "
-                                 "at the side walls); not the default (docs/wcsph.md, 'A hexagonal packing')",
+                                 "over the depth. Hexagonal (WCSPH's h 2.1 dx, walls at dx / 2, with particles.settle "
+                                 "0.6): -0.27%, the wave's targets met but its kinetic peaks' (+0.58% a period), but a "
+                                 "tank at rest reads its pressure 6x worse (2.6% against 0.42%, physical keys only: "
+                                 "the rows' staggered ends at the side walls); not the default (docs/wcsph.md, 'A "
+                                 "hexagonal packing')",
                        choices=("square", "hexagonal"))
+    settle: float = opt(0.0, "WCSPH: seconds of settling before t = 0 (run/settle.py): the scene run at rest (fluid "
+                             "velocities zero, Monaghan alpha 0.5, the same gravity and walls), then its settled "
+                             "positions and densities start the run with the bodies' velocities evaluated there. A "
+                             "hexagonal packing's start is not the discrete equilibrium (its rows end staggered at "
+                             "side walls): unsettled, the standing wave sheds ~1 J in its first period; after 0.6 s "
+                             "of settling its energy above rest holds (docs/wcsph.md). 0 = none (a square lattice "
+                             "starts in equilibrium)", unit="s", minimum=0.0)
     neighbor_access: str = opt("lists", "how pair loops reach neighbours: 'lists' = a stored Verlet list per particle "
                                         "(max_neighbors i32 each); 'cells' = a walk over the 3^dim cells around the "
                                         "particle in the cell-sorted arrays, no lists stored (WCSPH only; same sums "

@@ -25,9 +25,9 @@ ENERGY_COLUMNS = ["potential_energy", "elastic_energy", "energy_above_rest"]
 class EnergyWatch:
     """Measures E - E_rest on host states and judges its growth (module docstring)."""
 
-    def __init__(self, cfg: Config, fluid_mass: np.ndarray) -> None:
+    def __init__(self, cfg: Config, fluid_mass: np.ndarray, released: float = 0.0) -> None:
         self.cfg = cfg
-        self.rest = rest_state(cfg, fluid_mass)
+        self.rest = rest_state(cfg, fluid_mass, released)
         self.floor = energy_floor(cfg, float(np.sum(fluid_mass, dtype=np.float64)))
         self.input = energy_input(cfg)
 

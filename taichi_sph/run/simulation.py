@@ -30,6 +30,7 @@ from taichi_sph.run.loop_state import LoopState, RunResult
 from taichi_sph.run.output import Progress, RunFolder
 from taichi_sph.run.provenance import code_version
 from taichi_sph.run.runtime import current_arch_name, init_taichi
+from taichi_sph.run.settle import settle_particles
 from taichi_sph.run.summary import conservation, dt_range, step_timing
 from taichi_sph.scene.bodies import FLUID, build_particles, packing_note, wall_crossings
 from taichi_sph.solvers.registry import make_solver
@@ -106,10 +107,15 @@ class Simulation:
             self.warnings = list(resume.meta["warnings"])
         init_taichi(cfg.arch, cfg.precision)
         arrays = build_particles(cfg)
+        if resume is None and cfg.particles.settle > 0.0:
+            arrays = settle_particles(cfg, arrays, self.log)
         t_setup = time.perf_counter()
         solver = make_solver(cfg, arrays)
         self.metrics = make_metrics(cfg) if resume is None else pickle.loads(resume.meta["metrics"])
-        self.energy = EnergyWatch(cfg, arrays.mass[arrays.kind == FLUID])
+        self.released = arrays.released if resume is None else float(resume.meta.get("released", 0.0))
+        for m in self.metrics:
+            m.released = self.released
+        self.energy = EnergyWatch(cfg, arrays.mass[arrays.kind == FLUID], self.released)
         self.order_probe = OrderProbe(solver)
         # a checkpoint written before the particle-order diagnostics has no log: start one
         self.order_log = ParticleOrderLog(**(resume.meta.get("particle_order") or {}) if resume is not None else {})
@@ -358,7 +364,7 @@ class Simulation:
         fields, arrays, plain = solver.state_items()
         meta = {"t": solver.t, "step": solver.step_count, "solver_plain": plain, "loop": asdict(loop),
                 "metrics": pickle.dumps(self.metrics), "particle_order": asdict(self.order_log),
-                "warnings": list(self.warnings), "render": self.render_enabled}
+                "warnings": list(self.warnings), "render": self.render_enabled, "released": self.released}
         write_checkpoint(self.folder.path / CHECKPOINT_NAME, fields, arrays, meta)
 
     # -- the finish -------------------------------------------------------------------------------------
@@ -407,7 +413,7 @@ class Simulation:
             "particle_order": self.order_log.summary(),
             "c0": solver.c0 if solver.name == "wcsph" else None,
             "features": solver.features.compiled_in(),
-            "packing": cfg.packing, "wall_refinement": cfg.wall_refinement,
+            "packing": cfg.packing, "wall_refinement": cfg.wall_refinement, "settle_s": cfg.particles.settle,
             "arch": current_arch_name(), "precision": cfg.precision, "code": code_version(),
             "neighbours_max": solver.nsearch.max_count() if solver.nsearch.lists else None,
             "neighbour_capacity": solver.max_neighbors if solver.nsearch.lists else None,

@@ -29,6 +29,8 @@ class ParticleArrays:
     p: np.ndarray        # (N,) pressure [Pa]
     mass: np.ndarray     # (N,) mass [kg]
     kind: np.ndarray     # (N,) FLUID or WALL
+    body: np.ndarray | None = None  # (N,) the index in cfg.bodies each particle came from (build_particles)
+    released: float = 0.0  # [J] potential + elastic energy the settling before t = 0 gave up (run/settle.py)
 
     @property
     def n(self) -> int:
@@ -101,7 +103,7 @@ def build_particles(cfg: Config) -> ParticleArrays:
     B = tait_b(cfg.fluid.rho0, c0, cfg.fluid.gamma)
     hexagonal = cfg.packing == "hexagonal"
     wall_dx, refinement = cfg.wall_dx, cfg.wall_refinement
-    xs, vs, kinds, ps, volumes = [], [], [], [], []
+    xs, vs, kinds, ps, volumes, owners = [], [], [], [], [], []
     for i, body in enumerate(cfg.bodies):
         key = f"bodies[{i}]"
         volume, row = dx ** cfg.dim, dx  # each particle's volume; the spacing of the rows along the last axis
@@ -129,6 +131,7 @@ def build_particles(cfg: Config) -> ParticleArrays:
             p = p + body_pressure(body, pts, f"{key}.pressure", rng)
         xs.append(pts)
         volumes.append(np.full(len(pts), volume))
+        owners.append(np.full(len(pts), i, dtype=np.int32))
         vs.append(body_velocity(body, pts, key, rng))
         kinds.append(np.full(len(pts), kind, dtype=np.int32))
         ps.append(p)
@@ -136,16 +139,28 @@ def build_particles(cfg: Config) -> ParticleArrays:
     v = np.concatenate(vs)
     kind = np.concatenate(kinds)
     p = np.concatenate(ps)
-    volume = np.concatenate(volumes)
+    volume, owner = np.concatenate(volumes), np.concatenate(owners)
     order = np.argsort(kind, kind="stable")
-    x, v, kind, p, volume = x[order], v[order], kind[order], p[order], volume[order]
+    x, v, kind, p, volume, owner = x[order], v[order], kind[order], p[order], volume[order], owner[order]
     keep = _overlap_free(x, kind, min(dx, wall_dx))
-    x, v, kind, p, volume = x[keep], v[keep], kind[keep], p[keep], volume[keep]
+    x, v, kind, p, volume, owner = x[keep], v[keep], kind[keep], p[keep], volume[keep], owner[keep]
     rho = cfg.fluid.rho0 * (1.0 + p / B) ** (1.0 / cfg.fluid.gamma) if cfg.solver == "wcsph" else np.full(len(p), cfg.fluid.rho0)
     # every particle starts with its lattice's volume (dx^dim; a hexagonal box's a' b'; a wall's (dx / r)^dim), so
     # m = rho V (wall masses follow their extrapolated density during the run: see SolverBase.adami_wall_extrapolation)
     mass = rho * volume
-    return ParticleArrays(x=x, v=v, rho=rho, p=p, mass=mass, kind=kind)
+    return ParticleArrays(x=x, v=v, rho=rho, p=p, mass=mass, kind=kind, body=owner)
+
+
+def fluid_velocities(cfg: Config, arrays: ParticleArrays, x: np.ndarray) -> np.ndarray:
+    """Each fluid particle's velocity from its body's `velocity` at positions x (rows as arrays'; walls keep
+    theirs): the start a settled arrangement (run/settle.py) is given. The random draws repeat build_particles'."""
+    rng = np.random.default_rng(cfg.seed)
+    v = arrays.v.copy()
+    for i, body in enumerate(cfg.bodies):
+        mine = (arrays.body == i) & (arrays.kind == FLUID)
+        if body.type.startswith("fluid") and mine.any():
+            v[mine] = body_velocity(body, x[mine], f"bodies[{i}]", rng)
+    return v
 
 
 def _overlap_free(x: np.ndarray, kind: np.ndarray, dx: float) -> np.ndarray:

@@ -133,8 +133,17 @@ def _fluid_volume(cfg: Config) -> float:
     return total
 
 
-def rest_state(cfg: Config, mass: np.ndarray) -> RestState:
-    """E_p and E_e of the fluid settled under its body forces (module docstring)."""
+def rest_state(cfg: Config, mass: np.ndarray, released: float = 0.0) -> RestState:
+    """E_p and E_e of the fluid settled under its body forces (module docstring), less `released`: the energy a
+    settling before t = 0 took out of the packed arrangement (run/settle.py), which the stacked lattice estimate
+    still holds."""
+    rest = _stacked_rest_state(cfg, mass)
+    if rest.known and released:
+        return RestState(rest.potential - released, rest.elastic, True)
+    return rest
+
+
+def _stacked_rest_state(cfg: Config, mass: np.ndarray) -> RestState:
     m = np.sort(np.asarray(mass, dtype=np.float64))[::-1]  # heaviest lowest: the least potential
     n = len(m)
     rho0 = cfg.fluid.rho0

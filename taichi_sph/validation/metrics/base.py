@@ -19,6 +19,7 @@ class MetricObserver:
     def __init__(self, cfg: Config, spec: Metric) -> None:
         self.cfg = cfg
         self.spec = spec
+        self.released = 0.0  # [J] the energy a settling before t = 0 gave up (set by the run; run/settle.py)
 
     def observe(self, t: float, state: dict) -> dict:
         """Called at every output time; may return columns for timeseries.csv."""

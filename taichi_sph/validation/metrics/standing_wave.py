@@ -95,7 +95,7 @@ class StandingWaveMetric(MetricObserver):
         f = fluid_mask(state)
         x, v, m, rho = state["x"][f], state["v"][f], state["mass"][f], state["rho"][f]
         if self.rest is None:
-            self.rest = rest_state(self.cfg, m)
+            self.rest = rest_state(self.cfg, m, self.released)
             self.across = tuple(float(c) for c in x[:, 1:-1].mean(axis=0))
         left = surface_elevation(x, m / rho, self.probe_point(self.x_left), self.margin, floor=self.spec.floor)
         right = surface_elevation(x, m / rho, self.probe_point(self.x_right), self.margin, floor=self.spec.floor)
