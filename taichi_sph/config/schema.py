@@ -79,7 +79,7 @@ class Particles:
                                  "the rows' staggered ends at the side walls); not the default (docs/wcsph.md, 'A "
                                  "hexagonal packing')",
                        choices=("square", "hexagonal"))
-    settle: float = opt(0.0, "WCSPH: seconds of settling before t = 0 (run/settle.py): the scene run at rest (fluid "
+    settle: float = opt(0.0, "WCSPH (ISPH starts as packed): seconds of settling before t = 0 (run/settle.py): the scene run at rest (fluid "
                              "velocities zero, Monaghan alpha 0.5, the same gravity and walls), then its settled "
                              "positions and densities start the run with the bodies' velocities evaluated there. A "
                              "hexagonal packing's start is not the discrete equilibrium (its rows end staggered at "
@@ -232,8 +232,9 @@ class Walls:
     refinement: int | str = opt(AUTO, "wall particles r times finer than the fluid's (spacing dx / r, the same wall "
                                       "thickness, volume (dx / r)^dim each): fluid sliding along a wall feels the wall "
                                       "lattice's ripple with period dx / r, and a hexagonal fluid's rows meet a wall face "
-                                      "at staggered distances that a wall at dx rattles (noise). 'auto' = 2 with a "
-                                      "hexagonal packing, 1 otherwise (WCSPH only: ISPH's wall rows assume 1)")
+                                      "at staggered distances that a wall at dx rattles (noise). 'auto' = 2 for WCSPH on "
+                                      "a hexagonal packing, 1 otherwise (more than 1 is WCSPH's only: ISPH's wall rows "
+                                      "assume 1)")
 
 
 @dataclass(frozen=True)
@@ -644,11 +645,11 @@ class Config:
 
     @property
     def wall_refinement(self) -> int:
-        """Wall particles per fluid spacing along each axis: `walls.refinement`, or (auto) 2 with a hexagonal
-        packing, 1 otherwise."""
+        """Wall particles per fluid spacing along each axis: `walls.refinement`, or (auto) 2 for WCSPH on a
+        hexagonal packing, 1 otherwise."""
         if self.walls.refinement != AUTO:
             return int(self.walls.refinement)
-        return 2 if self.packing == "hexagonal" else 1
+        return 2 if self.packing == "hexagonal" and self.solver == "wcsph" else 1
 
     @property
     def wall_dx(self) -> float:

@@ -139,10 +139,7 @@ def validate(cfg: Config, source: str) -> None:
     if cfg.wall_refinement > 1 and cfg.solver != "wcsph":
         raise ConfigError("refined walls are for WCSPH only: ISPH's pressure equation weighs each wall row as one fluid "
                           "particle's volume; use walls.refinement: 1 (or auto)", source=source, key="walls.refinement")
-    if cfg.particles.settle > 0.0 and cfg.solver != "wcsph":
-        raise ConfigError("settling before t = 0 is for WCSPH only; set particles.settle: 0 for ISPH", source=source,
-                          key="particles.settle")
-    if cfg.particles.settle > 0.0 and any(b.type.startswith("wall") and b.velocity is not None
+    if cfg.particles.settle > 0.0 and cfg.solver == "wcsph" and any(b.type.startswith("wall") and b.velocity is not None
                                           and any(c != 0 for c in b.velocity) for b in cfg.bodies):
         raise ConfigError("a scene with moving walls cannot settle at rest before t = 0; set particles.settle: 0",
                           source=source, key="particles.settle")

@@ -107,12 +107,13 @@ class Simulation:
             self.warnings = list(resume.meta["warnings"])
         init_taichi(cfg.arch, cfg.precision)
         arrays = build_particles(cfg)
-        if resume is None and cfg.particles.settle > 0.0:
+        if resume is None and cfg.particles.settle > 0.0 and cfg.solver == "wcsph":
             arrays = settle_particles(cfg, arrays, self.log)
         t_setup = time.perf_counter()
         solver = make_solver(cfg, arrays)
         self.metrics = make_metrics(cfg) if resume is None else pickle.loads(resume.meta["metrics"])
         self.released = arrays.released if resume is None else float(resume.meta.get("released", 0.0))
+        self.settle_s = cfg.particles.settle if cfg.solver == "wcsph" else 0.0
         for m in self.metrics:
             m.released = self.released
         self.energy = EnergyWatch(cfg, arrays.mass[arrays.kind == FLUID], self.released)
@@ -413,7 +414,8 @@ class Simulation:
             "particle_order": self.order_log.summary(),
             "c0": solver.c0 if solver.name == "wcsph" else None,
             "features": solver.features.compiled_in(),
-            "packing": cfg.packing, "wall_refinement": cfg.wall_refinement, "settle_s": cfg.particles.settle,
+            "packing": cfg.packing, "wall_refinement": cfg.wall_refinement, "settle_s": self.settle_s,
+            "settle_released_J": self.released,
             "arch": current_arch_name(), "precision": cfg.precision, "code": code_version(),
             "neighbours_max": solver.nsearch.max_count() if solver.nsearch.lists else None,
             "neighbour_capacity": solver.max_neighbors if solver.nsearch.lists else None,
