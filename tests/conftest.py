@@ -59,7 +59,6 @@ SLOW = {
     "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods[0.025]": "~10-35 s: to t = 5",
     "test_standing_wave.py::test_isph_defaults_keep_the_wave_for_three_periods[0.0125]": "~25-50 s: 12.8k fluid, to t = 5",
     "test_standing_wave.py::test_wcsph_defaults_keep_the_wave_for_three_periods": "~70 s quiet, 134 s loaded: to t = 5",
-    "test_standing_wave.py::test_wcsph_on_a_hexagonal_packing_meets_the_wave_targets": "~60-120 s: 0.6 s settling, to t = 5",
     "test_standing_wave.py::test_the_wall_particles_in_the_shift_feed_the_wave": "~40 s: to t = 5",
     "test_standing_wave.py::test_isph_defaults_keep_the_3d_wave": "~30-45 s: 3D, 8k fluid, to t = 5",
     "test_standing_wave.py::test_the_fixed_surface_depth_makes_the_wave_slow": "~15-40 s: to t = 5",
@@ -70,6 +69,8 @@ SLOW = {
     "test_resume.py::test_killed_run_resumes_to_the_uninterrupted_state[6]": "~23-83 s, a kill moment",
     "test_resume.py::test_killed_run_resumes_to_the_uninterrupted_state[36]": "~23 s, a kill moment",
     "test_resume.py::test_isph_interrupted_run_resumes_within_the_run_to_run_spread": "62 s: ISPH runs to t = 0.5",
+    # the hexagonal packing's settled wave (in its own file: the slow set's workers take a file each)
+    "test_packing.py::test_wcsph_on_a_hexagonal_packing_meets_the_wave_targets": "~70-120 s: 0.6 s settling, to t = 5",
     # the pair of patches at the scene's dx 0.02 to t = 0.5 s (the coarse rotating-square runs stay default)
     "test_rotating_square.py::test_tensile_instability_control_keeps_the_patch_without_shifting": "64 s for both",
     # the ISPH stretched drop to t = 0.4 s and the oscillating drop to t = 0.9 s (the WCSPH stretched drop

@@ -147,13 +147,14 @@ def auto_neighbour_capacity(cfg: Config, radius: float) -> int:
 
 def lattice_shear_stiffness(w, dim: int, dx: float, reach: float, step: float = 1e-3,
                             packing: str = "square") -> tuple[float, float]:
-    """The curvature of the kernel sum S = sum_b W(x_a - x_b) V_b of a square/cubic lattice under an area-preserving
-    shear, relative to S: (1/S) d^2 S / d eps^2 for a pure shear along the axes (x stretched by 1 + eps, y shrunk
-    by the same factor) and along the diagonals (the simple shear x += 2 eps y, whose strain is eps along the
-    diagonals). A continuum kernel sum does not change under a shear; a lattice's does, by a lattice sum that
-    swings in sign with h / dx. WCSPH's continuity density is the summation density plus a fixed offset, so this
-    curvature times the pressure is an elastic shear modulus of the particle arrangement (docs/wcsph.md, "The
-    period bias measured against the lattice's shear stiffness")."""
+    """The curvature of the kernel sum S = sum_b W(x_a - x_b) V_b of a square/cubic lattice (`packing`: or the 2D
+    hexagonal one, whose two values are equal) under an area-preserving shear, relative to S: (1/S) d^2 S / d eps^2
+    for a pure shear along the axes (x stretched by 1 + eps, y shrunk by the same factor) and along the diagonals
+    (the simple shear x += 2 eps y, whose strain is eps along the diagonals). A continuum kernel sum does not change
+    under a shear; a lattice's does, by a lattice sum that swings in sign with h / dx. WCSPH's continuity density is
+    the summation density plus a fixed offset, so this curvature times the pressure is an elastic shear modulus of
+    the particle arrangement (docs/wcsph.md, "The period bias measured against the lattice's shear stiffness", "A
+    hexagonal packing")."""
     if packing == "hexagonal":
         a, b = hexagonal_spacing(dx)
         m = int(math.ceil(reach / b)) + 3
