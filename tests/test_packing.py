@@ -1,4 +1,4 @@
-"""The hexagonal packing and refined walls (scene/lattice.py hexagonal_*, Config.packing / wall_refinement):
+"""The hexagonal packing and refined walls (scene/lattice.py hexagonal_*, particles.packing, Config.wall_refinement):
 geometry, the lattice sums, the defaults and the particles a scene gets (docs/wcsph.md, 'A hexagonal packing')."""
 
 import math
@@ -90,7 +90,7 @@ HEX = ["particles.packing=hexagonal"]
 ])
 def test_packing_defaults(overrides, packing, refinement, hdx):
     cfg = load_config(WAVE, overrides)
-    assert (cfg.packing, cfg.wall_refinement, cfg.hdx) == (packing, refinement, hdx)
+    assert (cfg.particles.packing, cfg.wall_refinement, cfg.hdx) == (packing, refinement, hdx)
 
 
 @pytest.mark.parametrize("overrides, fragment", [

@@ -182,7 +182,7 @@ def cmd_run(args) -> int:
         arrays = build_particles(cfg)
         feats = Features.from_config(cfg, arrays.n_wall)
         print(f"{cfg.name}: {cfg.solver}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles, "
-              f"{cfg.packing} packing{packing_note(cfg)}")
+              f"{cfg.particles.packing} packing{packing_note(cfg)}")
         print("compiled in: " + ", ".join(feats.compiled_in()))
         for c in a_priori_checks(cfg):
             print(f"warning: {c.message}")

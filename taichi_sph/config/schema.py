@@ -617,7 +617,7 @@ class Config:
     @property
     def hdx(self) -> float:
         """h / dx for this run's solver (isph.hdx, particles.hdx, or the solver's DEFAULT_HDX)."""
-        hexagonal = self.packing == "hexagonal" and self.solver == "wcsph" and self.particles.kernel == "wendland_c2"
+        hexagonal = self.particles.packing == "hexagonal" and self.solver == "wcsph" and self.particles.kernel == "wendland_c2"
         default = HEXAGONAL_HDX if hexagonal else DEFAULT_HDX[self.solver][self.dim]
         shared = self.particles.hdx if self.particles.hdx is not None else default
         return self.for_solver("hdx", shared)
@@ -639,9 +639,10 @@ class Config:
         return self.gravity if self.gravity is not None else (0.0,) * self.dim
 
     @property
-    def packing(self) -> str:
-        """The fluid bodies' lattice, `particles.packing`."""
-        return self.particles.packing
+    def moving_walls(self) -> bool:
+        """A wall body with a nonzero (or expression) velocity."""
+        return any(b.type.startswith("wall") and b.velocity is not None and any(c != 0 for c in b.velocity)
+                   for b in self.bodies)
 
     @property
     def wall_refinement(self) -> int:
@@ -649,7 +650,7 @@ class Config:
         hexagonal packing, 1 otherwise."""
         if self.walls.refinement != AUTO:
             return int(self.walls.refinement)
-        return 2 if self.packing == "hexagonal" and self.solver == "wcsph" else 1
+        return 2 if self.particles.packing == "hexagonal" and self.solver == "wcsph" else 1
 
     @property
     def wall_dx(self) -> float:

@@ -139,14 +139,13 @@ def validate(cfg: Config, source: str) -> None:
     if cfg.wall_refinement > 1 and cfg.solver != "wcsph":
         raise ConfigError("refined walls are for WCSPH only: ISPH's pressure equation weighs each wall row as one fluid "
                           "particle's volume; use walls.refinement: 1 (or auto)", source=source, key="walls.refinement")
-    if cfg.particles.settle > 0.0 and cfg.solver == "wcsph" and any(b.type.startswith("wall") and b.velocity is not None
-                                          and any(c != 0 for c in b.velocity) for b in cfg.bodies):
+    if cfg.particles.settle > 0.0 and cfg.solver == "wcsph" and cfg.moving_walls:
         raise ConfigError("a scene with moving walls cannot settle at rest before t = 0; set particles.settle: 0",
                           source=source, key="particles.settle")
     if cfg.particles.packing == "hexagonal" and cfg.dim != 2:
-        raise ConfigError(f"the hexagonal packing is 2D only (this scene is {cfg.dim}D); use 'square' or 'auto'",
+        raise ConfigError(f"the hexagonal packing is 2D only (this scene is {cfg.dim}D); use 'square'",
                           source=source, key="particles.packing")
-    if cfg.packing == "hexagonal" and len(cfg.periodic) > 1 and cfg.periodic[1]:
+    if cfg.particles.packing == "hexagonal" and len(cfg.periodic) > 1 and cfg.periodic[1]:
         raise ConfigError("a hexagonal packing's rows are staggered along y, which a periodic y axis would break; use "
                           "particles.packing: square", source=source, key="particles.packing")
     for a, per in enumerate(cfg.periodic):

@@ -125,7 +125,7 @@ def _time_step(cfg: Config) -> list[CheckResult]:
 
 def lattice_neighbours(cfg: Config) -> int:
     """Neighbours of one particle within the kernel support on the initial lattice."""
-    return lattice_neighbour_count(cfg.dim, cfg.particles.dx, support_factor(cfg.particles.kernel) * cfg.h, cfg.packing)
+    return lattice_neighbour_count(cfg.dim, cfg.particles.dx, support_factor(cfg.particles.kernel) * cfg.h, cfg.particles.packing)
 
 
 def _support(cfg: Config) -> list[CheckResult]:
@@ -142,7 +142,7 @@ def _neighbour_capacity(cfg: Config) -> list[CheckResult]:
     if cfg.particles.max_neighbors == AUTO:
         return []
     radius = support_factor(cfg.particles.kernel) * cfg.h * (1.0 + cfg.skin_fraction)
-    lattice = lattice_neighbour_count(cfg.dim, cfg.particles.dx, radius, cfg.packing)
+    lattice = lattice_neighbour_count(cfg.dim, cfg.particles.dx, radius, cfg.particles.packing)
     capacity = int(cfg.particles.max_neighbors)
     if capacity >= lattice:
         return []

@@ -17,7 +17,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from taichi_sph.config.schema import AUTO, Body, Config
-from taichi_sph.scene.lattice import auto_neighbour_capacity, axis_points, hexagonal_box, hexagonal_sphere
+from taichi_sph.scene.bodies import fluid_body_points
+from taichi_sph.scene.lattice import auto_neighbour_capacity, axis_points
 from taichi_sph.sph.kernels import support_factor
 
 GIB = float(1 << 30)
@@ -110,10 +111,8 @@ def particle_counts(cfg: Config) -> tuple[int, int, int]:
     dx = cfg.particles.dx
     fluid = wall = largest = 0
     for body in cfg.bodies:
-        if body.type.startswith("fluid") and cfg.packing == "hexagonal":
-            pts = (hexagonal_box(body.lo, body.hi, dx)[0] if body.type == "fluid_block"
-                   else hexagonal_sphere(body.center, body.radius, dx))
-            count = lattice = len(pts)
+        if body.type.startswith("fluid") and cfg.particles.packing == "hexagonal":
+            count = lattice = len(fluid_body_points(body, dx, "hexagonal")[0])
         elif body.type.startswith("fluid"):
             count, lattice = body_points(body, dx, cfg.wall_layers(body))
         else:

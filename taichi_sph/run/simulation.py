@@ -107,13 +107,13 @@ class Simulation:
             self.warnings = list(resume.meta["warnings"])
         init_taichi(cfg.arch, cfg.precision)
         arrays = build_particles(cfg)
-        if resume is None and cfg.particles.settle > 0.0 and cfg.solver == "wcsph":
+        self.settle_s = cfg.particles.settle if cfg.solver == "wcsph" else 0.0  # ISPH starts as packed
+        if resume is None and self.settle_s > 0.0:
             arrays = settle_particles(cfg, arrays, self.log)
         t_setup = time.perf_counter()
         solver = make_solver(cfg, arrays)
         self.metrics = make_metrics(cfg) if resume is None else pickle.loads(resume.meta["metrics"])
         self.released = arrays.released if resume is None else float(resume.meta.get("released", 0.0))
-        self.settle_s = cfg.particles.settle if cfg.solver == "wcsph" else 0.0
         for m in self.metrics:
             m.released = self.released
         self.energy = EnergyWatch(cfg, arrays.mass[arrays.kind == FLUID], self.released)
@@ -125,7 +125,7 @@ class Simulation:
             raise UsageError(f"the checkpoint does not fit this solver ({missing}); --overwrite starts afresh")
         folder, loop = self._run_folder(resume)
         self.log(f"{cfg.name}: {solver.name}, dim {cfg.dim}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles, "
-                 f"dx {cfg.particles.dx:g} ({cfg.packing}{packing_note(cfg)}), h {cfg.h:.4g}, c0 {solver.c0:.4g} m/s, "
+                 f"dx {cfg.particles.dx:g} ({cfg.particles.packing}{packing_note(cfg)}), h {cfg.h:.4g}, c0 {solver.c0:.4g} m/s, "
                  f"arch {current_arch_name()}")
         try:
             solver.prepare()
@@ -414,7 +414,7 @@ class Simulation:
             "particle_order": self.order_log.summary(),
             "c0": solver.c0 if solver.name == "wcsph" else None,
             "features": solver.features.compiled_in(),
-            "packing": cfg.packing, "wall_refinement": cfg.wall_refinement, "settle_s": self.settle_s,
+            "packing": cfg.particles.packing, "wall_refinement": cfg.wall_refinement, "settle_s": self.settle_s,
             "settle_released_J": self.released,
             "arch": current_arch_name(), "precision": cfg.precision, "code": code_version(),
             "neighbours_max": solver.nsearch.max_count() if solver.nsearch.lists else None,

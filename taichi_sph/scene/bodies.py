@@ -45,6 +45,20 @@ class ParticleArrays:
         return int(np.count_nonzero(self.kind == WALL))
 
 
+def fluid_body_points(body: Body, dx: float, packing: str) -> tuple[np.ndarray, float, float]:
+    """A fluid_block's or fluid_sphere's points in `packing`, each one's volume, and the spacing of the rows along
+    the last axis (the hydrostatic start's top half-row): dx^dim and dx on the square lattice; a hexagonal box's
+    fitted a' b' and b' (hexagonal_box), a hexagonal circle's dx^2 and dx."""
+    if body.type == "fluid_block":
+        if packing == "hexagonal":
+            return hexagonal_box(body.lo, body.hi, dx)
+        return lattice_box(body.lo, body.hi, dx), dx ** len(body.lo), dx
+    dim = len(body.center)
+    pts = (hexagonal_sphere(body.center, body.radius, dx) if packing == "hexagonal"
+           else lattice_sphere(body.center, body.radius, dx))
+    return pts, dx ** dim, dx
+
+
 def packing_note(cfg: Config) -> str:
     """', walls at dx / r' where the walls are refined, else ''."""
     return f", walls at dx / {cfg.wall_refinement}" if cfg.wall_refinement > 1 else ""
@@ -101,20 +115,12 @@ def build_particles(cfg: Config) -> ParticleArrays:
     gmag = float(np.linalg.norm(g))
     c0 = cfg.sound_speed
     B = tait_b(cfg.fluid.rho0, c0, cfg.fluid.gamma)
-    hexagonal = cfg.packing == "hexagonal"
     wall_dx, refinement = cfg.wall_dx, cfg.wall_refinement
     xs, vs, kinds, ps, volumes, owners = [], [], [], [], [], []
     for i, body in enumerate(cfg.bodies):
         key = f"bodies[{i}]"
-        volume, row = dx ** cfg.dim, dx  # each particle's volume; the spacing of the rows along the last axis
-        if body.type == "fluid_block" and hexagonal:
-            pts, volume, row = hexagonal_box(body.lo, body.hi, dx)
-        elif body.type == "fluid_block":
-            pts = lattice_box(body.lo, body.hi, dx)
-        elif body.type == "fluid_sphere" and hexagonal:
-            pts = hexagonal_sphere(body.center, body.radius, dx)
-        elif body.type == "fluid_sphere":
-            pts = lattice_sphere(body.center, body.radius, dx)
+        if body.type.startswith("fluid"):
+            pts, volume, row = fluid_body_points(body, dx, cfg.particles.packing)
         elif body.type == "wall_box":
             pts, volume = wall_box_points(body, wall_dx, cfg.wall_layers(body) * refinement), wall_dx ** cfg.dim
         else:

@@ -82,18 +82,22 @@ def lattice_sphere(center: tuple[float, ...], radius: float, dx: float) -> np.nd
     return pts[keep] + np.asarray(center)
 
 
-def lattice_distances(dim: int, dx: float, reach: float, packing: str = "square") -> np.ndarray:
-    """|x_a - x_b| from one site of an unbounded square/cubic lattice (spacing dx), or (2D) the hexagonal lattice with
-    dx^2 per site, to every site of the box of half-width ~reach + dx around it, the site itself (r = 0) included."""
+def lattice_sites(dim: int, dx: float, reach: float, packing: str = "square") -> np.ndarray:
+    """(N, dim) offsets from one site of an unbounded square/cubic lattice (spacing dx), or (2D) the hexagonal lattice
+    with dx^2 per site, to every site of the box of half-width ~reach + 2 spacings around it, the site itself (the
+    zero offset) included."""
     if packing == "hexagonal" and dim == 2:
         a, b = hexagonal_spacing(dx)
-        m = int(math.ceil(reach / b)) + 2
-        pts = hexagonal_rows((-0.25 * a, -0.5 * b), a, b, (-m * a, -m * b), (m * a, m * b))
-        return np.sqrt(np.sum(pts ** 2, axis=1))
-    n = int(math.ceil(reach / dx)) + 1
+        m = int(math.ceil(reach / b)) + 3
+        return hexagonal_rows((-0.25 * a, -0.5 * b), a, b, (-m * a, -m * b), (m * a, m * b))
+    n = int(math.ceil(reach / dx)) + 2
     offs = np.arange(-n, n + 1) * dx
-    grids = np.meshgrid(*([offs] * dim), indexing="ij")
-    return np.sqrt(sum(g.ravel() ** 2 for g in grids))
+    return np.stack([g.ravel() for g in np.meshgrid(*([offs] * dim), indexing="ij")], axis=1)
+
+
+def lattice_distances(dim: int, dx: float, reach: float, packing: str = "square") -> np.ndarray:
+    """|x_a - x_b| from one site to every site of lattice_sites (r = 0 included)."""
+    return np.sqrt(np.sum(lattice_sites(dim, dx, reach, packing) ** 2, axis=1))
 
 
 def lattice_neighbour_count(dim: int, dx: float, radius: float, packing: str = "square") -> int:
@@ -104,7 +108,7 @@ def lattice_neighbour_count(dim: int, dx: float, radius: float, packing: str = "
 def lattice_kernel_sum(cfg: Config, w) -> float:
     """sum_b W(x_a - x_b) V_b over a full lattice (used to flag free-surface particles)."""
     dx = cfg.particles.dx
-    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h, cfg.packing)
+    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h, cfg.particles.packing)
     return float(np.sum(w(r)) * dx ** cfg.dim)
 
 
@@ -116,7 +120,7 @@ def lattice_gradient_sum(cfg: Config, dw_dr, eta2: float = 0.0) -> float:
     Brookshaw / Shao & Lo Laplacian of a quadratic field.
     """
     dx = cfg.particles.dx
-    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h, cfg.packing)
+    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h, cfg.particles.packing)
     r = r[r > 0]
     return float(np.sum(-r * dw_dr(r) * r * r / (r * r + eta2)) * dx ** cfg.dim / cfg.dim)
 
@@ -125,7 +129,7 @@ def lattice_laplacian_weight_sum(cfg: Config, dw_dr, eta2: float) -> float:
     """sum_b V_b (-r dW/dr) / (r^2 + eta^2) over a full lattice (b != a): the Shao & Lo diagonal sum_b K_ab of a
     particle inside the lattice is 2 V_a / rho0 times this (K_ab = -2 V_b / rho0 (r dW/dr) / (r^2 + eta^2))."""
     dx = cfg.particles.dx
-    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h, cfg.packing)
+    r = lattice_distances(cfg.dim, dx, 3.0 * cfg.h, cfg.particles.packing)
     r = r[r > 0]
     return float(np.sum(-r * dw_dr(r) / (r * r + eta2)) * dx ** cfg.dim)
 
@@ -140,7 +144,7 @@ def max_neighbors_for(cfg: Config, support_radius: float) -> int:
 def auto_neighbour_capacity(cfg: Config, radius: float) -> int:
     """2.5x the lattice count within `radius`, times (1 + r^dim) / 2 with walls r times finer (half a wall particle's
     support in the wall, holding r^dim as many)."""
-    lattice = lattice_neighbour_count(cfg.dim, cfg.particles.dx, radius, cfg.packing)
+    lattice = lattice_neighbour_count(cfg.dim, cfg.particles.dx, radius, cfg.particles.packing)
     walls = max(1.0, 0.5 * (1.0 + cfg.wall_refinement ** cfg.dim))
     return max(8, int(math.ceil(2.5 * lattice * walls)))
 
@@ -155,14 +159,7 @@ def lattice_shear_stiffness(w, dim: int, dx: float, reach: float, step: float = 
     the summation density plus a fixed offset, so this curvature times the pressure is an elastic shear modulus of
     the particle arrangement (docs/wcsph.md, "The period bias measured against the lattice's shear stiffness", "A
     hexagonal packing")."""
-    if packing == "hexagonal":
-        a, b = hexagonal_spacing(dx)
-        m = int(math.ceil(reach / b)) + 3
-        pts = hexagonal_rows((-0.25 * a, -0.5 * b), a, b, (-m * a, -m * b), (m * a, m * b)).T
-    else:
-        n = int(math.ceil(reach / dx)) + 2
-        offs = np.arange(-n, n + 1) * dx
-        pts = np.stack([g.ravel() for g in np.meshgrid(*([offs] * dim), indexing="ij")])
+    pts = lattice_sites(dim, dx, reach, packing).T
 
     def kernel_sum(f: np.ndarray) -> float:
         return float(np.sum(w(np.linalg.norm(f @ pts, axis=0))))

@@ -48,8 +48,7 @@ class Features:
     def from_config(cls, cfg: Config, n_wall: int, wide: str = "f64") -> "Features":
         wc = cfg.wcsph
         walls = n_wall > 0
-        moving = any(b.type.startswith("wall") and b.velocity is not None
-                     and any(c != 0 for c in b.velocity) for b in cfg.bodies)
+        moving = cfg.moving_walls
         diffusion = wc.density_diffusion.model
         if wc.density_diffusion.delta == 0.0 or cfg.solver != "wcsph" or wc.density != "continuity":
             diffusion = "none"

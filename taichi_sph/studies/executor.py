@@ -85,13 +85,10 @@ def estimated_work(cfg: Config) -> float:
     each) the log of wall / estimate spreads with a standard deviation of 1.57 (2.25 with the Courant limit alone,
     which missed the viscous step of Poiseuille flow and of ISPH's Taylor-Green vortex by up to 1000x)."""
     from taichi_sph.config.schema import AUTO
-    from taichi_sph.run.checks import time_step_limits
+    from taichi_sph.run.checks import lattice_neighbours, time_step_limits
     from taichi_sph.run.memory import particle_counts
-    from taichi_sph.scene.lattice import lattice_neighbour_count
-    from taichi_sph.sph.kernels import support_factor
     fluid, wall, _ = particle_counts(cfg)
-    neighbours = lattice_neighbour_count(cfg.dim, cfg.particles.dx, support_factor(cfg.particles.kernel) * cfg.h,
-                                         cfg.packing)
+    neighbours = lattice_neighbours(cfg)
     dt = float(cfg.time.dt) if cfg.time.dt != AUTO else min(time_step_limits(cfg).values())
     return (fluid + wall) * neighbours * cfg.time.t_end / dt * (ISPH_STEP_COST if cfg.solver == "isph" else 1.0)
 

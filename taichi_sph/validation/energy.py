@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from taichi_sph.config import Config
-from taichi_sph.scene.bodies import tait_b
-from taichi_sph.scene.lattice import hexagonal_spacing, hexagonal_sphere, lattice_sphere
+from taichi_sph.scene.bodies import fluid_body_points, tait_b
+from taichi_sph.scene.lattice import hexagonal_spacing, lattice_sphere
 from taichi_sph.validation import diagnostics
 
 
@@ -108,7 +108,7 @@ def _layer_heights(cfg: Config, n: int, axis: int) -> tuple[np.ndarray, int, flo
     layer and the layers' spacing (a hexagonal packing's rows, when gravity is across them: a b apart, a across)."""
     dx = cfg.particles.dx
     lo, hi = _container(cfg)
-    hexagonal = cfg.packing == "hexagonal" and axis == cfg.dim - 1
+    hexagonal = cfg.particles.packing == "hexagonal" and axis == cfg.dim - 1
     along = hexagonal_spacing(dx)[0] if hexagonal else dx
     per_layer = 1
     for a in range(cfg.dim):
@@ -122,14 +122,12 @@ def _layer_heights(cfg: Config, n: int, axis: int) -> tuple[np.ndarray, int, flo
 
 
 def _fluid_volume(cfg: Config) -> float:
-    """The fluid bodies' volume as the particles hold it: a box's own (a hexagonal box fits its rows to it), a
-    sphere's particles' dx^dim each."""
+    """The fluid bodies' volume as the particles hold it (a hexagonal box's is the box's: it fits its rows)."""
     total = 0.0
     for body in cfg.bodies:
-        if body.type == "fluid_block":
-            total += math.prod(h - l for l, h in zip(body.lo, body.hi))
-        elif body.type == "fluid_sphere":
-            total += len(hexagonal_sphere(body.center, body.radius, cfg.particles.dx)) * cfg.particles.dx ** cfg.dim
+        if body.type.startswith("fluid"):
+            pts, volume, _ = fluid_body_points(body, cfg.particles.dx, cfg.particles.packing)
+            total += len(pts) * volume
     return total
 
 
@@ -203,10 +201,8 @@ def tilted_rest_bound(g: np.ndarray, axis: int, lo: np.ndarray, hi: np.ndarray, 
 def energy_input(cfg: Config) -> str | None:
     """Why energy may enter this scene's fluid (then growth above rest is no instability); None for a closed one:
     moving walls, a gravity ramp, a body force along a periodic axis (a driven channel), or no rest state."""
-    for b in cfg.bodies:
-        if b.type.startswith("wall") and b.velocity is not None and any(
-                not (isinstance(c, (int, float)) and c == 0) for c in b.velocity):
-            return "moving walls"
+    if cfg.moving_walls:
+        return "moving walls"
     if cfg.gravity_ramp > 0:
         return "a gravity ramp"
     if _gravity_along_periodic_axis(cfg):

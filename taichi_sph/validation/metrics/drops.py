@@ -14,8 +14,7 @@ import numpy as np
 
 from taichi_sph.config.schema import Config, Metric
 from taichi_sph.errors import ConfigError
-from taichi_sph.scene.bodies import FLUID
-from taichi_sph.scene.lattice import hexagonal_sphere, lattice_sphere
+from taichi_sph.scene.bodies import FLUID, fluid_body_points
 from taichi_sph.validation import reference as ref
 from taichi_sph.validation.metrics.base import MetricObserver
 
@@ -44,8 +43,7 @@ class DropEllipseMetric(MetricObserver):
             raise ConfigError("the drop_ellipse metric needs a 2D scene with a fluid_sphere", key="metrics")
         self.radius = body.radius
         self.omega = cfg.central_force.omega
-        x0 = (hexagonal_sphere(body.center, body.radius, cfg.particles.dx) if cfg.packing == "hexagonal"
-              else lattice_sphere(body.center, body.radius, cfg.particles.dx))
+        x0 = fluid_body_points(body, cfg.particles.dx, cfg.particles.packing)[0]
         self.x0_moments = ((x0 - x0.mean(axis=0)) ** 2).mean(axis=0)
         self.t: list[float] = []
         self.a: list[float] = []
