@@ -229,6 +229,17 @@ class Shifting:
 @dataclass(frozen=True)
 class Walls:
     slip: str = opt("no_slip", "wall condition for viscous terms (Adami et al. 2012 velocity extrapolation)", choices=("no_slip", "free_slip"))
+    artificial_viscosity: str = opt("relative", "what a wall particle shows a fluid particle in Monaghan's artificial "
+                                              "viscosity at a free-slip wall: 'relative', the whole v_a - v_w, whose part "
+                                              "along the wall is a friction on fluid sliding along it (the laminar "
+                                              "viscosity has none at a free-slip wall); 'normal', its part along the wall "
+                                              "face's normal only (physics/walls.py free_slip_relative_velocity): no "
+                                              "tangential stress, approach still resisted. dam_break_2d WCSPH / ISPH "
+                                              "front RMS raw / shifted 0.244 / 0.0398, 0.241 / 0.0424 -> 0.309 / 0.0349, "
+                                              "0.312 / 0.0365; Buchner's WCSPH impact t* 2.97 -> 2.55 (experiment 2.51); "
+                                              "not the default yet (the front's raw target, ISPH's Buchner run: "
+                                              "docs/notes/dam_break.md). Faces from wall_box and wall_block bodies; "
+                                              "free_slip only", choices=("relative", "normal"))
     refinement: int | str = opt(AUTO, "wall particles r times finer than the fluid's (spacing dx / r, the same wall "
                                       "thickness, volume (dx / r)^dim each): fluid sliding along a wall feels the wall "
                                       "lattice's ripple with period dx / r, and a hexagonal fluid's rows meet a wall face "

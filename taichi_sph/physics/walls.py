@@ -51,6 +51,15 @@ def kinematic_wall_condition(v, normal, distance: float, clearance: float, dt: f
 
 
 @ti.func
+def free_slip_relative_velocity(v_aw, normal):
+    """The relative velocity a free-slip wall w shows fluid particle a in a viscous pair term: its part along w's
+    face normal, (v_aw . n) n. A free-slip wall exerts no tangential stress; the whole v_a - v_w in Monaghan's
+    artificial viscosity, mu ~ h v_aw . r_aw / r^2, is a friction on a particle sliding along a resting wall
+    (every wall neighbour off its normal has v_aw . r_aw != 0), while the normal part still resists approach."""
+    return v_aw.dot(normal) * normal
+
+
+@ti.func
 def pressed_wall_pressure(p_wall: float, p_a: float, hydrostatic_difference: float) -> float:
     """The pressure of wall w, along w's face normal, in the pressure gradient of an ISPH unknown a pressed inside its
     rest distance (nearer w's face than PRESSED_DISTANCE; along the wall Adami's value stands, solvers/isph.py

@@ -167,6 +167,9 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
         floats += 1 + d                                     # rho_summation, grad_p_estimate
         floats += 4 + nb + {"cg": 3, "mgcg": 4 + 3 ** d - 1}.get(cfg.isph.ppe.solver_for(n_fluid), 0)
         ints += 2 + nb                                      # role, row start, a column index per pair
+    clearance = cfg.wcsph.wall_clearance if cfg.solver == "wcsph" else cfg.isph.wall_clearance
+    if f.free_slip_normal_viscosity and clearance is None:
+        floats += 2 * d                                     # wall face normals (+ scratch)
     extra = 24.0 if render else 0.0
     return floats * fp + ints * 4 + extra
 

@@ -4,7 +4,7 @@
 import numpy as np
 import taichi as ti
 
-from taichi_sph.physics.walls import kinematic_wall_condition
+from taichi_sph.physics.walls import free_slip_relative_velocity, kinematic_wall_condition
 from taichi_sph.scene.bodies import WALL, ParticleArrays, wall_face_planes
 from taichi_sph.sph.particles import np_float
 
@@ -14,20 +14,33 @@ class KinematicWalls:
 
     def init_kinematic_walls(self, arrays: ParticleArrays, clearance_dx: float | None) -> None:
         """Each wall particle's face (unit normal into the fluid, plane offset; permuted with it) for the
-        kinematic wall condition (physics/walls.py), kept `clearance_dx` dx off the faces; None: off."""
+        kinematic wall condition (physics/walls.py), kept `clearance_dx` dx off the faces; None: off. The
+        normals also for `walls.artificial_viscosity: normal`."""
         self.kinematic_walls = self.features.walls and clearance_dx is not None
-        if self.kinematic_walls:
+        if self.kinematic_walls or self.features.free_slip_normal_viscosity:
             P = self.particles
-            self.wall_clearance = clearance_dx * self.dx
             normal, offset, container = wall_face_planes(self.cfg, arrays.x, arrays.kind)
+            self.wall_normal = P.add_vector(persistent=True)  # also the free-slip artificial viscosity's normals
+            self.wall_normal.from_numpy(normal.astype(np_float()))
+        if self.kinematic_walls:
+            self.wall_clearance = clearance_dx * self.dx
             if self.cfg.shifting_walls == "mirror" and container.any():  # faces the shift's grad C reflects in
                 self.wall_container = P.add_scalar(persistent=True, dtype=ti.i32)
                 self.wall_container.from_numpy(container.astype(np.int32))
-            self.wall_normal = P.add_vector(persistent=True)
             self.wall_offset = P.add_scalar(persistent=True)
-            self.wall_normal.from_numpy(normal.astype(np_float()))
             self.wall_offset.from_numpy(offset.astype(np_float()))
             self.wall_cuts = ti.field(ti.i32, shape=())  # particle-steps the condition cut (over the run)
+
+    @ti.func
+    def free_slip_viscous_velocity(self, v_aw, b):
+        """v_a - v_w as fluid particle a's artificial viscosity sees wall b under `walls.artificial_viscosity:
+        normal`: its part along b's face normal (physics/walls.py free_slip_relative_velocity); the whole of it
+        for a wall particle of no face (normal 0: a body without faces)."""
+        out = v_aw
+        n = self.wall_normal[b]
+        if n.dot(n) > 0.5:
+            out = free_slip_relative_velocity(v_aw, n)
+        return out
 
     @ti.func
     def kinematic_wall_cut(self, a, v, dt):

@@ -20,6 +20,7 @@ class Features:
     walls: bool
     moving_walls: bool
     no_slip: bool
+    free_slip_normal_viscosity: bool  # the artificial viscosity's wall pairs along the face normal only
     gravity: bool
     central_force: bool
     laminar_viscosity: bool
@@ -64,6 +65,8 @@ class Features:
             walls=walls,
             moving_walls=walls and moving,
             no_slip=walls and cfg.walls.slip == "no_slip",
+            free_slip_normal_viscosity=(walls and cfg.walls.slip == "free_slip" and cfg.walls.artificial_viscosity == "normal"
+                                        and (alpha > 0.0 or beta > 0.0 or cfg.viscosity_switch)),
             gravity=cfg.has_gravity,
             central_force=cfg.central_force.omega > 0.0,
             laminar_viscosity=cfg.fluid.nu > 0.0,
@@ -121,7 +124,8 @@ class Features:
         if self.central_force:
             terms.append("central_force")
         if self.walls:
-            terms.append("adami_walls:" + ("no_slip" if self.no_slip else "free_slip"))
+            terms.append("adami_walls:" + ("no_slip" if self.no_slip else "free_slip")
+                         + (":normal_artificial_viscosity" if self.free_slip_normal_viscosity else ""))
         if any(self.periodic):
             terms.append("periodic:" + "".join("xyz"[a] for a, p in enumerate(self.periodic) if p))
         if self.reflecting:
