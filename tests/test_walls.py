@@ -23,12 +23,18 @@ def _couette(clearance):
                    {"type": "wall_block", "lo": [0.0, -0.15], "hi": [H, 0.0]},
                    {"type": "wall_block", "lo": [0.0, H], "hi": [H, H + 0.15], "velocity": [U, 0.0]}],
         "walls": {"slip": "no_slip"}, "isph": {"wall_clearance": clearance}, "time": {"t_end": 0.25}})
+    solver = _run_to(cfg, 0.25)
+    return solver.host_state(), solver.extra_summary()
+
+
+def _run_to(cfg, t_end: float):
+    """The config's solver, stepped to exactly t_end."""
     solver = make_solver(cfg, build_particles(cfg))
     solver.prepare()
-    while solver.t < 0.25 - 1e-9:
-        solver.dt_cap = 0.25 - solver.t
+    while solver.t < t_end - 1e-9:
+        solver.dt_cap = t_end - solver.t
         solver.step()
-    return solver.host_state(), solver.extra_summary()
+    return solver
 
 
 def test_a_sliding_wall_over_a_shear_flow_never_triggers_the_condition():
@@ -93,12 +99,7 @@ def _slide(solver_name: str, artificial_viscosity: str) -> float:
         "walls": {"slip": "free_slip", "artificial_viscosity": artificial_viscosity},
         "wcsph": {"artificial_viscosity": {"alpha": 0.1}}, "isph": {"artificial_viscosity_alpha": 0.1},
         "time": {"t_end": t_end}})
-    solver = make_solver(cfg, build_particles(cfg))
-    solver.prepare()
-    while solver.t < t_end - 1e-9:
-        solver.dt_cap = t_end - solver.t
-        solver.step()
-    state = solver.host_state()
+    state = _run_to(cfg, t_end).host_state()
     return float(state["v"][state["kind"] == FLUID, 0].mean() / U)
 
 

@@ -209,10 +209,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
             # on every pair, not approaching ones only (WCSPH's form): see the function
             if ti.static(self.features.viscosity_switch):
                 sums.compression += compression_rate(P.mass[b], v_ab, self.rho0, grad_w)
-            v_av = v_ab
-            if ti.static(self.features.free_slip_normal_viscosity):
-                if not is_fluid_b:
-                    v_av = self.free_slip_viscous_velocity(v_ab, b)
+            v_av = self.artificial_viscosity_velocity(v_ab, b, is_fluid_b)  # a free-slip wall's: its normal part
             sums.acc += monaghan_viscosity(P.mass[b], v_av, r_ab, r2, self.h, self.c0, self.rho0,
                                            self.pair_alpha(sums.alpha_a, b), self.beta_av, grad_w, True)
         if ti.static(self.features.laminar_viscosity):

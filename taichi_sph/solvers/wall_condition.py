@@ -32,14 +32,16 @@ class KinematicWalls:
             self.wall_cuts = ti.field(ti.i32, shape=())  # particle-steps the condition cut (over the run)
 
     @ti.func
-    def free_slip_viscous_velocity(self, v_aw, b):
-        """v_a - v_w as fluid particle a's artificial viscosity sees wall b under `walls.artificial_viscosity:
-        normal`: its part along b's face normal (physics/walls.py free_slip_relative_velocity); the whole of it
-        for a wall particle of no face (normal 0: a body without faces)."""
-        out = v_aw
-        n = self.wall_normal[b]
-        if n.dot(n) > 0.5:
-            out = free_slip_relative_velocity(v_aw, n)
+    def artificial_viscosity_velocity(self, v_ab, b, is_fluid_b):
+        """v_a - v_b as fluid particle a's artificial viscosity sees neighbour b: as it is, but for a wall b under
+        `walls.artificial_viscosity: normal` its part along b's face normal (physics/walls.py
+        free_slip_relative_velocity; a wall particle of no face, normal 0, keeps the whole of it)."""
+        out = v_ab
+        if ti.static(self.features.free_slip_normal_viscosity):
+            if not is_fluid_b:
+                n = self.wall_normal[b]
+                if n.dot(n) > 0.5:
+                    out = free_slip_relative_velocity(v_ab, n)
         return out
 
     @ti.func

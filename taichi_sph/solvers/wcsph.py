@@ -270,10 +270,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         if ti.static(self.features.artificial_viscosity):
             if ti.static(self.features.viscosity_switch):
                 sums.compression += compression_rate(m_b, v_ab, sums.rho_a, grad_w)
-            v_av = v_visc
-            if ti.static(self.features.free_slip_normal_viscosity):
-                if not is_fluid_b:
-                    v_av = self.free_slip_viscous_velocity(v_visc, b)
+            v_av = self.artificial_viscosity_velocity(v_visc, b, is_fluid_b)  # a free-slip wall's: its normal part
             sums.acc += monaghan_viscosity(m_b, v_av, r_ab, r2, self.h, self.c0, 0.5 * (sums.rho_a + rho_b),
                                            self.pair_alpha(sums.alpha_a, b), self.beta, grad_w, False)
         if ti.static(self.features.laminar_viscosity):

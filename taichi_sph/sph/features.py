@@ -56,6 +56,7 @@ class Features:
         if diffusion == "fourtakas" and not cfg.has_gravity:
             diffusion = "molteni"  # no hydrostatic part to remove
         alpha, beta = cfg.artificial_viscosity
+        artificial = alpha > 0.0 or beta > 0.0 or cfg.viscosity_switch
         return cls(
             dim=cfg.dim,
             solver=cfg.solver,
@@ -65,15 +66,15 @@ class Features:
             walls=walls,
             moving_walls=walls and moving,
             no_slip=walls and cfg.walls.slip == "no_slip",
-            free_slip_normal_viscosity=(walls and cfg.walls.slip == "free_slip" and cfg.walls.artificial_viscosity == "normal"
-                                        and (alpha > 0.0 or beta > 0.0 or cfg.viscosity_switch)),
+            free_slip_normal_viscosity=(artificial and walls and cfg.walls.slip == "free_slip"
+                                        and cfg.walls.artificial_viscosity == "normal"),
             gravity=cfg.has_gravity,
             central_force=cfg.central_force.omega > 0.0,
             laminar_viscosity=cfg.fluid.nu > 0.0,
             # ISPH takes 'normalised' for WCSPH's per-particle forms (solvers/base.py)
             laplacian=("normalised" if cfg.solver == "isph" and cfg.fluid.laplacian in ("renormalised", "consistent")
                        else cfg.fluid.laplacian),
-            artificial_viscosity=(alpha > 0.0 or beta > 0.0 or cfg.viscosity_switch),
+            artificial_viscosity=artificial,
             viscosity_switch=cfg.viscosity_switch,
             switch_noise_source=cfg.viscosity_switch and cfg.solver == "isph" and cfg.isph.switch_noise > 0.0,
             density=wc.density if cfg.solver == "wcsph" else "summation",
