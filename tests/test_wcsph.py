@@ -335,34 +335,62 @@ def test_kinematic_wall_condition_keeps_an_impact_inside_the_box():
     assert on["kinematic_walls"]["particle_steps_cut"] > 0 and "kinematic_walls" not in off
 
 
-def test_hydrostatic_density_difference_matches_the_exact_power():
-    """Fourtakas' rho0 ((1 - e)^(1/gamma) - 1): the series used for |e| < 0.01 and the pow beyond agree with
-    the float64 power to f32 rounding, on both sides of the switch and for two gammas (the series is the more
-    accurate: no cancellation in (1 - e)^k - 1)."""
+def tait_column_density(depth: np.ndarray, rho0: float, c0: float, gamma: float) -> np.ndarray:
+    """A Tait fluid at rest under g = 9.81: dp/dz = -rho g gives (rho / rho0)^(gamma - 1) = 1 + (gamma - 1) g depth / c0^2
+    (gamma 1: rho0 exp(g depth / c0^2))."""
+    if gamma == 1.0:
+        return rho0 * np.exp(9.81 * depth / c0 ** 2)
+    return rho0 * (1.0 + (gamma - 1.0) * 9.81 * depth / c0 ** 2) ** (1.0 / (gamma - 1.0))
+
+
+def test_hydrostatic_density_difference_is_the_tait_columns_at_any_depth():
+    """The hydrostatic part taken out of the Fourtakas diffusion: for pairs up to a support apart (any direction) at
+    depths 0 to 2 m of a column with c0 = 20 m/s (rho up to 2.6% over rho0: both sides of the series' switch), the
+    difference matches the exact Tait column's rho(z_b) - rho(z_a) to 1e-3 of itself, for gamma 7 and 1. Fourtakas'
+    surface-referenced form (rho_m = rho0) misses it at 1 m by 12% (gamma 7): the test fails on it."""
     import taichi as ti
 
     from taichi_sph.physics.density import hydrostatic_density_difference
-    rho0, b = 1000.0, 5.6e5
-    e = np.concatenate([np.linspace(-0.03, 0.03, 61), [-0.0099999, 0.0099999, 0.0100001, 1e-7, 0.0]])
-    g = np.array([0.0, -9.81])
-    dz = -e * b / (rho0 * g[1])  # r_ab = (0, dz): e = rho0 g . r_ab / B
-    out = ti.field(ti.f32, len(e))
-    z = ti.field(ti.f32, len(e))
-    z.from_numpy(dz.astype(np.float32))
+    rho0, c0 = 1000.0, 20.0
+    rng = np.random.default_rng(5)
+    n = 400
+    depth_a = rng.uniform(0.0, 2.0, n)
+    angle, dist = rng.uniform(0.0, 2 * np.pi, n), rng.uniform(0.02, 0.1, n)
+    r_ab = np.stack([dist * np.cos(angle), dist * np.sin(angle)], axis=1)  # x_a - x_b
+    depth_b = depth_a + r_ab[:, 1]  # b lies below a where (x_a - x_b)_y > 0
+    fields = {k: ti.field(ti.f32, n) for k in ("rho_a", "rho_b", "out")}
+    r = ti.Vector.field(2, ti.f32, n)
+    r.from_numpy(r_ab.astype(np.float32))
     for gamma in (7.0, 1.0):
+        rho_a, rho_b = tait_column_density(depth_a, rho0, c0, gamma), tait_column_density(depth_b, rho0, c0, gamma)
+        fields["rho_a"].from_numpy(rho_a.astype(np.float32))
+        fields["rho_b"].from_numpy(rho_b.astype(np.float32))
+
         @ti.kernel
         def fill(gamma: ti.template()):
-            for i in range(out.shape[0]):
-                out[i] = hydrostatic_density_difference(ti.Vector([0.0, z[i]]), ti.Vector([0.0, -9.81]), rho0, b, gamma)
+            for i in range(n):
+                fields["out"][i] = hydrostatic_density_difference(r[i], ti.Vector([0.0, -9.81]), fields["rho_a"][i],
+                                                                  fields["rho_b"][i], rho0, c0, gamma)
         fill(gamma)
-        e32 = rho0 * g[1] * dz.astype(np.float32).astype(np.float64) / b
-        exact = rho0 * ((1.0 - e32) ** (1.0 / gamma) - 1.0)
-        series = np.abs(e32) < 0.01
-        got = out.to_numpy()
-        np.testing.assert_allclose(got[series], exact[series], rtol=2e-6, atol=1e-12 * rho0)
-        # beyond the switch: pow(1 - e) - 1 cancels in f32 (relative error ~ 6e-8 / |e / gamma|), as it always did
-        np.testing.assert_allclose(got[~series], exact[~series], rtol=1e-4)
-        assert series.sum() > 20 and (~series).sum() > 20
+        exact = rho_b - rho_a
+        got = fields["out"].to_numpy()
+        assert np.abs(got - exact).max() < 1e-3 * np.abs(exact).max()
+        np.testing.assert_allclose(got, exact, rtol=1e-3, atol=2e-4)
+        s = 0.5 * (rho_a + rho_b) / rho0 - 1.0
+        assert (s < 0.02).sum() > 50 and (s >= 0.02).sum() > 50 or gamma == 1.0
+
+
+def test_fourtakas_diffusion_keeps_a_tank_at_rest_level():
+    """The tank at rest (16 x 16 particles, 0.4 m deep) with Fourtakas' diffusion at c0 = 10x the reference speed
+    (1% compression at the floor), 2 s, the energy guard off: its energy above rest peaks at 0.0037 M g dx (measured;
+    0.0009 without diffusion). With the hydrostatic part referenced to the free surface (Fourtakas' form) the misfit
+    at depth is a density source and the level rises: 0.0172 M g dx (4x at c0 = 5x: 0.100 against 0.0065)."""
+    res = run(hydrostatic_cfg(fluid={"reference_speed": math.sqrt(9.81 * 0.4), "c0_factor": 10.0},
+                              time={"t_end": 2.0}, output={"every": 0.1}, metrics=[], guards={"energy_growth": None}))
+    assert res.summary["status"] == "ok"
+    mgdx = 16 * 16 * 1000.0 * 0.025 ** 2 * 9.81 * 0.025
+    rise = res.summary["energy"]["above_rest_peak"] / mgdx
+    assert rise < 0.008, rise
 
 
 def test_dam_break_with_the_tensile_correction_runs_to_the_end_inside_the_walls(tmp_path):

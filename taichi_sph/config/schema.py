@@ -151,7 +151,7 @@ class Reflecting:
 @dataclass(frozen=True)
 class DensityDiffusion:
     model: str = opt("none", "delta-SPH density diffusion: Molteni & Colagrossi 2009, with the hydrostatic part "
-                              "removed (Fourtakas et al. 2019), or with the linear part of every pair's difference removed "
+                              "removed (Fourtakas et al. 2019; the Tait column's difference at the pair's own depth), or with the linear part of every pair's difference removed "
                               "through the renormalised density gradient (Antuono et al. 2010): zero on any linear density "
                               "field, also where a free surface cuts the kernel", choices=("none", "molteni", "fourtakas",
                                                                                            "antuono"))
@@ -755,11 +755,16 @@ class Config:
         return "strained" if self.has_gravity and self.central_force.omega == 0 else "fixed"
 
     @property
+    def wall_clearance(self) -> float | None:
+        """The running solver's kinematic wall clearance in dx (`wcsph.` or `isph.wall_clearance`; None: off)."""
+        return self.isph.wall_clearance if self.solver == "isph" else self.wcsph.wall_clearance
+
+    @property
     def shifting_walls(self) -> str:
         """`shifting.walls` resolved: 'auto' is the mirror for ISPH with its kinematic wall faces, else the particles."""
         if self.shifting.walls != AUTO:
             return self.shifting.walls
-        return "mirror" if self.solver == "isph" and self.isph.wall_clearance is not None else "particles"
+        return "mirror" if self.solver == "isph" and self.wall_clearance is not None else "particles"
 
 
 # ----------------------------------------------------------------------------- generic loader

@@ -117,8 +117,7 @@ def validate(cfg: Config, source: str) -> None:
         raise ConfigError("isph.frame: eulerian keeps every particle where it starts, and isph.density: continuity "
                           "carries each particle's density with its motion; use isph.density: summation (the default) "
                           "with the Eulerian frame", source=source, key="isph.frame")
-    clearance = cfg.isph.wall_clearance if cfg.solver == "isph" else cfg.wcsph.wall_clearance
-    if cfg.shifting.walls == "mirror" and clearance is None:  # explicit only: auto falls back
+    if cfg.shifting.walls == "mirror" and cfg.wall_clearance is None:  # explicit only: auto falls back
         raise ConfigError(f"the mirror reflects the fluid in the wall faces of the kinematic wall condition, which "
                           f"`{cfg.solver}.wall_clearance: null` switches off: set a clearance (default 0.25) or "
                           f"`shifting.walls: particles`", source=source, key="shifting.walls")

@@ -157,18 +157,17 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
         ints += f.tensile_instability_control  # the free-surface region kept for it
     if cfg.solver == "wcsph":
         floats += (f.density == "continuity") + (f.density_diffusion != "none") + f.dim * (f.density_diffusion == "antuono")
-        if f.walls and cfg.wcsph.wall_clearance is not None:
+        if f.walls and cfg.wall_clearance is not None:
             floats += 2 * (d + 1)                           # wall planes (+ scratch)
             ints += 1                                       # near-wall flag
     else:
-        kinematic = f.walls and cfg.isph.wall_clearance is not None
+        kinematic = f.walls and cfg.wall_clearance is not None
         floats += 2 * ((d + 1) if kinematic else 0) + d     # wall planes (+ scratch), acc scratch
         ints += 2 * (kinematic and cfg.shifting_walls == "mirror")  # container-face flag (+ scratch)
         floats += 1 + d                                     # rho_summation, grad_p_estimate
         floats += 4 + nb + {"cg": 3, "mgcg": 4 + 3 ** d - 1}.get(cfg.isph.ppe.solver_for(n_fluid), 0)
         ints += 2 + nb                                      # role, row start, a column index per pair
-    clearance = cfg.wcsph.wall_clearance if cfg.solver == "wcsph" else cfg.isph.wall_clearance
-    if f.free_slip_normal_viscosity and clearance is None:
+    if f.free_slip_normal_viscosity and cfg.wall_clearance is None:
         floats += 2 * d                                     # wall face normals (+ scratch)
     extra = 24.0 if render else 0.0
     return floats * fp + ints * 4 + extra

@@ -118,7 +118,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.switch_noise = ic.switch_noise
         self.wall_mass = self.rho0 * self.lattice_volume
         # kinematic wall condition: each wall particle knows the face it lies behind (permuted with it)
-        self.init_kinematic_walls(arrays, ic.wall_clearance)
+        self.init_kinematic_walls(arrays, cfg.wall_clearance)
         # an unknown pressed into a wall takes its row's Neumann value there at least (the faces come with the kinematic
         # condition; extrapolated walls are unknowns of the PPE, their pressure is the solve's)
         self.pressed_walls = self.kinematic_walls and not self.extrapolated_walls

@@ -88,7 +88,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         self.shifting = ParticleShifting(self, cfg.shifting_coefficient) if f.shifting else None
         self.schedule = LoopSchedule()
         self.init_device_loop(cfg, self.shifting.max_shift if self.shifting is not None else 0.0)
-        self.init_kinematic_walls(arrays, cfg.wcsph.wall_clearance)
+        self.init_kinematic_walls(arrays, cfg.wall_clearance)
         # fluid particles with a wall neighbour (set by the force pass, read by the next drift: same order)
         self.near_wall = P.add_scalar(dtype=ti.i32) if self.kinematic_walls else None
         # the transport velocity (Adami et al. 2013): a_b is set by the force pass and read by the next drift (same
@@ -340,7 +340,8 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         minus the linear part through the renormalised gradients)."""
         drho_ab = rho_b - sums.rho_a
         if ti.static(self.features.density_diffusion == "fourtakas"):
-            drho_ab -= hydrostatic_density_difference(r_ab, self.gravity[None], self.rho0, self.B, self.gamma)
+            drho_ab -= hydrostatic_density_difference(r_ab, self.gravity[None], sums.rho_a, rho_b, self.rho0, self.c0,
+                                                      self.gamma)
         if ti.static(self.features.density_diffusion == "antuono"):
             drho_ab = antuono_density_difference(sums.rho_a, rho_b, self.grad_rho[a], self.grad_rho[b], r_ab)
         sums.drho += molteni_diffusion(sums.rho_a, sums.rho_a + drho_ab, m_b / rho_b, r_ab, r2, self.eta2,
