@@ -228,7 +228,10 @@ class Shifting:
 
 @dataclass(frozen=True)
 class Walls:
-    slip: str = opt("no_slip", "wall condition for viscous terms (Adami et al. 2012 velocity extrapolation)", choices=("no_slip", "free_slip"))
+    slip: str = opt("no_slip", "wall condition for the laminar viscosity (no_slip: Adami et al. 2012's extrapolated "
+                                "ghost velocity 2 v_w - v_fluid; free_slip: no wall pairs). The artificial viscosity "
+                                "sees a wall's own velocity either way (see walls.artificial_viscosity)",
+                    choices=("no_slip", "free_slip"))
     artificial_viscosity: str = opt("relative", "what a wall particle shows a fluid particle in Monaghan's artificial "
                                               "viscosity at a free-slip wall: 'relative', the whole v_a - v_w, whose part "
                                               "along the wall is a friction on fluid sliding along it (the laminar "

@@ -149,7 +149,7 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
     ints += 2 + 5 + nb                      # scratch of kind, id; cell sort; neighbour list
     if cfg.skin_fraction > 0.0:
         floats += d
-    if f.no_slip:
+    if f.ghost_velocity:
         floats += d
     if f.shifting:
         floats += d

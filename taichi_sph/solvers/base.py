@@ -94,8 +94,8 @@ class SolverBase(KinematicWalls, CheckpointState):
         # the CPU no copy at all, where five scalar field reads cost ~80 us per step)
         self.stats_host = np.zeros(5, dtype=np_float())
         if f.walls:
-            # Adami ghost velocity for no-slip viscous terms; prescribed wall velocity stays in v
-            self.v_ghost = self.particles.add_vector() if f.no_slip else None
+            # Adami ghost velocity for the no-slip laminar viscosity; prescribed wall velocity stays in v
+            self.v_ghost = self.particles.add_vector() if f.ghost_velocity else None
         self.domain_lo = tuple(cfg.domain.lo)
         self.domain_hi = tuple(cfg.domain.hi)
         self.restitution = cfg.reflecting.restitution
@@ -272,7 +272,7 @@ class SolverBase(KinematicWalls, CheckpointState):
                     rho_w = tait_density(p, self.rho0, self.B, self.gamma, self.p_background)
                     P.rho[a] = rho_w
                     P.mass[a] = rho_w * self.lattice_volume  # a wall particle stands for its (dx / r)^dim of ghost fluid
-                    if ti.static(self.features.no_slip):
+                    if ti.static(self.features.ghost_velocity):
                         self.v_ghost[a] = adami_wall_velocity(P.v[a], sum_vw, sum_w)
 
     @ti.func
@@ -284,7 +284,7 @@ class SolverBase(KinematicWalls, CheckpointState):
             sums.w += w
             sums.pw += P.p[b] * w
             sums.rho_rw += P.rho[b] * r_ab * w
-            if ti.static(self.features.no_slip):
+            if ti.static(self.features.ghost_velocity):
                 sums.vw += P.v[b] * w
 
     @ti.func

@@ -201,10 +201,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         r2 = r_ab.dot(r_ab)
         grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
         is_fluid_b = P.kind[b] == FLUID
-        v_ab = sums.va - P.v[b]
-        if ti.static(self.features.no_slip):
-            if not is_fluid_b:
-                v_ab = sums.va - self.v_ghost[b]
+        v_ab = sums.va - P.v[b]  # a wall's own velocity (artificial viscosity: see artificial_viscosity_velocity)
         if ti.static(self.features.artificial_viscosity):
             # on every pair, not approaching ones only (WCSPH's form): see the function
             if ti.static(self.features.viscosity_switch):
@@ -214,6 +211,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                                            self.pair_alpha(sums.alpha_a, b), self.beta_av, grad_w, True)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
+                if ti.static(self.features.ghost_velocity):
+                    if not is_fluid_b:
+                        v_ab = sums.va - self.v_ghost[b]  # the no-slip wall's ghost (Adami et al. 2012)
                 sums.acc += self.visc_norm * morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,
                                                      self.eta2, grad_w)
 
@@ -560,7 +560,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
             if self.strained_depth:
                 self.strain_dt[None] = dt
             self.detect_free_surface()
-        if self.features.no_slip and (self.features.laminar_viscosity or self.features.artificial_viscosity):
+        if self.features.ghost_velocity:
             self.wall_pressure()  # ghost velocities for the viscous terms
         self.predict_velocity(dt)
         self.assemble_ppe(dt, dt_free)

@@ -397,7 +397,7 @@ class ISPHDeviceLoop:
 
     def step_head(self) -> None:
         """The step's passes before the solve: wall ghosts, predictor, assembly."""
-        if self.features.no_slip and (self.features.laminar_viscosity or self.features.artificial_viscosity):
+        if self.features.ghost_velocity:
             self.wall_pressure()
         self.predict_velocity_on_clock()
         self.assemble_ppe_on_clock()

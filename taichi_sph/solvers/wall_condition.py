@@ -35,7 +35,11 @@ class KinematicWalls:
     def artificial_viscosity_velocity(self, v_ab, b, is_fluid_b):
         """v_a - v_b as fluid particle a's artificial viscosity sees neighbour b: as it is, but for a wall b under
         `walls.artificial_viscosity: normal` its part along b's face normal (physics/walls.py
-        free_slip_relative_velocity; a wall particle of no face, normal 0, keeps the whole of it)."""
+        free_slip_relative_velocity; a wall particle of no face, normal 0, keeps the whole of it). v_b is a wall's
+        own velocity at either slip condition: the no-slip ghost velocity (2 v_w - the fluid's) is the laminar
+        viscosity's. With it WCSPH's approaching-pairs-only form read half of a no-slip wall's particles as
+        approaching a fluid sliding along it at twice its speed, a push off the wall that tore a jet along a wall
+        corner into tension (a dam break onto a floor block, physical keys only: "unstable" at 0.50 s)."""
         out = v_ab
         if ti.static(self.features.free_slip_normal_viscosity):
             if not is_fluid_b:

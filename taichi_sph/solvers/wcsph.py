@@ -263,18 +263,20 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         if ti.static(self.features.density_diffusion != "none"):
             if is_fluid_b:
                 self.diffusion_pair(a, b, r_ab, r2, m_b, rho_b, grad_w, sums)
-        v_visc = v_ab
-        if ti.static(self.features.no_slip and (self.features.laminar_viscosity or self.features.artificial_viscosity)):
-            if not is_fluid_b:
-                v_visc = sums.va - self.v_ghost[b]
         if ti.static(self.features.artificial_viscosity):
             if ti.static(self.features.viscosity_switch):
                 sums.compression += compression_rate(m_b, v_ab, sums.rho_a, grad_w)
-            v_av = self.artificial_viscosity_velocity(v_visc, b, is_fluid_b)  # a free-slip wall's: its normal part
+            # a wall's own velocity, not the no-slip ghost's (artificial_viscosity_velocity); a free-slip wall's
+            # normal part under walls.artificial_viscosity: normal
+            v_av = self.artificial_viscosity_velocity(v_ab, b, is_fluid_b)
             sums.acc += monaghan_viscosity(m_b, v_av, r_ab, r2, self.h, self.c0, 0.5 * (sums.rho_a + rho_b),
                                            self.pair_alpha(sums.alpha_a, b), self.beta, grad_w, False)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
+                v_visc = v_ab
+                if ti.static(self.features.ghost_velocity):
+                    if not is_fluid_b:
+                        v_visc = sums.va - self.v_ghost[b]
                 if ti.static(self.consistent_laplacian):
                     v_visc = consistent_velocity_difference(v_visc, self.grad_v[a], r_ab)
                 visc = morris_laminar_viscosity(m_b, self.nu, sums.rho_a, rho_b, v_visc, r_ab, r2, self.eta2, grad_w)

@@ -20,6 +20,7 @@ class Features:
     walls: bool
     moving_walls: bool
     no_slip: bool
+    ghost_velocity: bool          # Adami's no-slip wall velocity: the laminar viscosity's at a no-slip wall
     free_slip_normal_viscosity: bool  # the artificial viscosity's wall pairs along the face normal only
     gravity: bool
     central_force: bool
@@ -66,6 +67,7 @@ class Features:
             walls=walls,
             moving_walls=walls and moving,
             no_slip=walls and cfg.walls.slip == "no_slip",
+            ghost_velocity=walls and cfg.walls.slip == "no_slip" and cfg.fluid.nu > 0.0,
             free_slip_normal_viscosity=(artificial and walls and cfg.walls.slip == "free_slip"
                                         and cfg.walls.artificial_viscosity == "normal"),
             gravity=cfg.has_gravity,
