@@ -151,7 +151,8 @@ class Reflecting:
 @dataclass(frozen=True)
 class DensityDiffusion:
     model: str = opt("none", "delta-SPH density diffusion: Molteni & Colagrossi 2009, with the hydrostatic part "
-                              "removed (Fourtakas et al. 2019; the Tait column's difference at the pair's own depth), or with the linear part of every pair's difference removed "
+                              "removed (Fourtakas et al. 2019; the Tait column's difference at the pair's own depth), "
+                              "or with the linear part of every pair's difference removed "
                               "through the renormalised density gradient (Antuono et al. 2010): zero on any linear density "
                               "field, also where a free surface cuts the kernel", choices=("none", "molteni", "fourtakas",
                                                                                            "antuono"))
@@ -239,7 +240,8 @@ class Walls:
                                               "face's normal only (physics/walls.py free_slip_relative_velocity): no "
                                               "tangential stress, approach still resisted. dam_break_2d WCSPH / ISPH "
                                               "front RMS raw / shifted 0.244 / 0.0398, 0.241 / 0.0424 -> 0.309 / 0.0349, "
-                                              "0.312 / 0.0365; Buchner's WCSPH probe p* RMS / impact t* 0.289 / 2.63 -> 0.201 / 2.61 (experiment 2.51); "
+                                              "0.312 / 0.0365; Buchner's WCSPH probe p* RMS / impact t* 0.289 / 2.63 -> "
+                                              "0.201 / 2.61 (experiment 2.51); "
                                               "not the default yet (the front's raw target, ISPH's Buchner run: "
                                               "docs/notes/dam_break.md). Faces from wall_box and wall_block bodies; "
                                               "free_slip only", choices=("relative", "normal"))
