@@ -67,6 +67,25 @@ def test_the_wave_starts_with_its_energy_and_trips_past_the_bound():
     assert watch.violation(loop)["criterion"] == "energy_growth"
 
 
+def test_a_start_at_rest_that_trips_the_guard_by_a_few_floors_is_told_it_may_be_settling():
+    """A coarse tank at rest swings as its start settles, past the floor (3D, 10 particles deep: 5e-3 M g dx against
+    3e-3; docs/notes/user_scenes.md): the detail then names the remedies. A growth of more than three floors, or a
+    start with energy of its own (the wave), gets the plain detail."""
+    watch, state = watch_and_rows("hydrostatic_2d.yaml", ["solver=wcsph"])
+    loop = LoopState()
+    measure(watch, state, loop)
+    assert loop.energy_start < watch.floor
+    loop.energy_last = 1.5 * watch.floor
+    bad = watch.violation(loop)
+    assert bad["criterion"] == "energy_growth" and "particles.settle" in bad["detail"]
+    loop.energy_last = 4.0 * watch.floor
+    assert "particles.settle" not in watch.violation(loop)["detail"]
+    wave, wave_state = watch_and_rows("standing_wave_2d.yaml")
+    measure(wave, wave_state, wave_loop := LoopState())
+    wave_loop.energy_last = 1.2 * wave_loop.energy_start + wave.floor
+    assert "particles.settle" not in wave.violation(wave_loop)["detail"]
+
+
 def test_the_peak_follows_the_rows_and_the_summary_scales_by_the_start():
     watch, state = watch_and_rows("standing_wave_2d.yaml")
     loop = LoopState()
