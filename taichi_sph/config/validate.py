@@ -133,8 +133,9 @@ def validate(cfg: Config, source: str) -> None:
     if mn != AUTO and (isinstance(mn, str) or mn < 1):
         raise ConfigError(f"must be a positive integer or 'auto', got {mn!r}", source=source, key="particles.max_neighbors")
     if cfg.walls.artificial_viscosity == "normal" and cfg.walls.slip != "free_slip":
-        raise ConfigError("'normal' is a free-slip wall's form (a no-slip wall's viscosity takes Adami's ghost "
-                          "velocity); use walls.slip: free_slip or walls.artificial_viscosity: relative",
+        raise ConfigError("'normal' takes the friction along a free-slip wall out of the artificial viscosity; a "
+                          "no-slip wall is meant to hold the fluid along it: use walls.slip: free_slip or "
+                          "walls.artificial_viscosity: relative",
                           source=source, key="walls.artificial_viscosity")
     ref = cfg.walls.refinement
     if ref != AUTO and (isinstance(ref, (bool, str, float)) or ref < 1):

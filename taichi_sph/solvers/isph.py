@@ -118,7 +118,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.switch_noise = ic.switch_noise
         self.wall_mass = self.rho0 * self.lattice_volume
         # kinematic wall condition: each wall particle knows the face it lies behind (permuted with it)
-        self.init_kinematic_walls(arrays, cfg.wall_clearance)
+        self.init_kinematic_walls(arrays)
         # an unknown pressed into a wall takes its row's Neumann value there at least (the faces come with the kinematic
         # condition; extrapolated walls are unknowns of the PPE, their pressure is the solve's)
         self.pressed_walls = self.kinematic_walls and not self.extrapolated_walls
@@ -211,10 +211,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                                            self.pair_alpha(sums.alpha_a, b), self.beta_av, grad_w, True)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
-                if ti.static(self.features.ghost_velocity):
-                    if not is_fluid_b:
-                        v_ab = sums.va - self.v_ghost[b]  # the no-slip wall's ghost (Adami et al. 2012)
-                sums.acc += self.visc_norm * morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_ab, r_ab, r2,
+                v_visc = self.laminar_viscosity_velocity(sums.va, v_ab, b, is_fluid_b)
+                sums.acc += self.visc_norm * morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_visc, r_ab, r2,
                                                      self.eta2, grad_w)
 
     # -- 3. the linear system -----------------------------------------------------------------
@@ -561,7 +559,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 self.strain_dt[None] = dt
             self.detect_free_surface()
         if self.features.ghost_velocity:
-            self.wall_pressure()  # ghost velocities for the viscous terms
+            self.wall_pressure()  # ghost velocities for the laminar viscosity
         self.predict_velocity(dt)
         self.assemble_ppe(dt, dt_free)
         self.solve_pressure()

@@ -12,10 +12,11 @@ from taichi_sph.sph.particles import np_float
 class KinematicWalls:
     """Mixin of SolverBase: the wall faces (permuted with the particles) and the cut of a velocity."""
 
-    def init_kinematic_walls(self, arrays: ParticleArrays, clearance_dx: float | None) -> None:
+    def init_kinematic_walls(self, arrays: ParticleArrays) -> None:
         """Each wall particle's face (unit normal into the fluid, plane offset; permuted with it) for the
-        kinematic wall condition (physics/walls.py), kept `clearance_dx` dx off the faces; None: off. The
-        normals also for `walls.artificial_viscosity: normal`."""
+        kinematic wall condition (physics/walls.py), kept the run's `wall_clearance` dx off the faces; None: off.
+        The normals also for `walls.artificial_viscosity: normal`."""
+        clearance_dx = self.cfg.wall_clearance
         self.kinematic_walls = self.features.walls and clearance_dx is not None
         if self.kinematic_walls or self.features.free_slip_normal_viscosity:
             P = self.particles
@@ -46,6 +47,17 @@ class KinematicWalls:
                 n = self.wall_normal[b]
                 if n.dot(n) > 0.5:
                     out = free_slip_relative_velocity(v_ab, n)
+        return out
+
+    @ti.func
+    def laminar_viscosity_velocity(self, v_a, v_ab, b, is_fluid_b):
+        """v_a - v_b as fluid particle a's laminar viscosity sees neighbour b: for a wall b at a no-slip wall (with a
+        laminar viscosity: Features.ghost_velocity) v_a less Adami et al. (2012)'s ghost velocity 2 v_w - (the
+        fluid's), so that the velocity vanishes at the wall face; otherwise as it is."""
+        out = v_ab
+        if ti.static(self.features.ghost_velocity):
+            if not is_fluid_b:
+                out = v_a - self.v_ghost[b]
         return out
 
     @ti.func

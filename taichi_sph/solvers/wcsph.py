@@ -88,7 +88,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         self.shifting = ParticleShifting(self, cfg.shifting_coefficient) if f.shifting else None
         self.schedule = LoopSchedule()
         self.init_device_loop(cfg, self.shifting.max_shift if self.shifting is not None else 0.0)
-        self.init_kinematic_walls(arrays, cfg.wall_clearance)
+        self.init_kinematic_walls(arrays)
         # fluid particles with a wall neighbour (set by the force pass, read by the next drift: same order)
         self.near_wall = P.add_scalar(dtype=ti.i32) if self.kinematic_walls else None
         # the transport velocity (Adami et al. 2013): a_b is set by the force pass and read by the next drift (same
@@ -273,10 +273,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                                            self.pair_alpha(sums.alpha_a, b), self.beta, grad_w, False)
         if ti.static(self.features.laminar_viscosity):
             if ti.static(self.features.no_slip) or is_fluid_b:
-                v_visc = v_ab
-                if ti.static(self.features.ghost_velocity):
-                    if not is_fluid_b:
-                        v_visc = sums.va - self.v_ghost[b]
+                v_visc = self.laminar_viscosity_velocity(sums.va, v_ab, b, is_fluid_b)
                 if ti.static(self.consistent_laplacian):
                     v_visc = consistent_velocity_difference(v_visc, self.grad_v[a], r_ab)
                 visc = morris_laminar_viscosity(m_b, self.nu, sums.rho_a, rho_b, v_visc, r_ab, r2, self.eta2, grad_w)
