@@ -6,12 +6,13 @@ import numpy as np
 import pytest
 
 from taichi_sph.config import load_config
-from taichi_sph.config.loader import bundled_configs_dir
+from taichi_sph.config.loader import bundled_configs_dir, config_from_dict
 from taichi_sph.run.energy_watch import EnergyWatch
 from taichi_sph.run.loop_state import LoopState
+from taichi_sph.run.simulation import Simulation
 from taichi_sph.scene.bodies import FLUID, build_particles
 from taichi_sph.validation.diagnostics import kinetic_energy
-from taichi_sph.validation.energy import energy_floor, energy_input
+from taichi_sph.validation.energy import energy_floor, energy_input, rest_state
 
 CONFIGS = bundled_configs_dir()
 
@@ -35,6 +36,40 @@ def test_the_floor_is_gravity_s_work_over_a_three_hundredth_of_dx_plus_a_million
     assert energy_floor(cfg, 2000.0) == pytest.approx(2000.0 * (3e-3 * 9.81 * 0.025 + 0.5e-6 * 4.43 ** 2))
     isph = load_config(CONFIGS / "standing_wave_2d.yaml", ["solver=isph"])  # ISPH does not settle: a third of it
     assert energy_floor(isph, 2000.0) == pytest.approx(2000.0 * (1e-3 * 9.81 * 0.025 + 0.5e-6 * 4.43 ** 2))
+
+
+def _tank_at_rest(dx: float, t_end: float = 0.0) -> dict:
+    """A user's 2D tank at rest, 0.5 m deep (0.5 / dx particles), physical keys only."""
+    return {"name": "tank", "dim": 2, "gravity": [0.0, -9.81], "domain": {"lo": [-0.3, -0.3], "hi": [0.8, 0.9]},
+            "particles": {"dx": dx}, "fluid": {"rho0": 1000.0, "reference_speed": 3.13},
+            "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.5, 0.5], "hydrostatic": True},
+                       {"type": "wall_box", "lo": [0.0, 0.0], "hi": [0.5, 0.7]}],
+            "time": {"t_end": t_end or 1.0}, "output": {"every": 0.05}}
+
+
+def test_wcsphs_floor_grows_as_the_square_of_dx_over_the_settled_depth_below_18_particles():
+    """A WCSPH start at rest swings by ~0.31 (dx / H)^2 M g dx in 2D, ~0.66 (dx / H)^2 in 3D (docs/notes/
+    user_scenes.md), past 3e-3 below ~10 particles deep: the floor's fraction is max(3e-3, (dx / H)^2). ISPH's is not."""
+    for dx, depth_in_dx in ((0.0625, 8), (0.025, 20)):
+        cfg = config_from_dict(_tank_at_rest(dx))
+        a = build_particles(cfg)
+        m = a.mass[a.kind == FLUID]
+        rest = rest_state(cfg, m)
+        assert rest.depth == pytest.approx(depth_in_dx * dx, rel=1e-9)
+        fraction = max(3e-3, 1.0 / depth_in_dx ** 2)
+        assert energy_floor(cfg, 100.0, rest.depth) == pytest.approx(100.0 * (fraction * 9.81 * dx + 0.5e-6 * 3.13 ** 2))
+        isph = config_from_dict({**_tank_at_rest(dx), "solver": "isph"})
+        assert energy_floor(isph, 100.0, rest.depth) == pytest.approx(100.0 * (1e-3 * 9.81 * dx + 0.5e-6 * 3.13 ** 2))
+
+
+def test_a_coarse_wcsph_tank_at_rest_is_not_called_unstable():
+    """8 particles deep, WCSPH's defaults: the start's swing peaks at 0.80 J = 5.2e-3 M g dx (measured), which
+    tripped the old floor of 3e-3 M g dx at 0.25 s; the floor at (dx / H)^2 = 1.6e-2 M g dx holds it 3x over."""
+    cfg = config_from_dict({**_tank_at_rest(0.0625, 0.5), "solver": "wcsph"})
+    s = Simulation(cfg, None, render=False, quiet=True).run().summary
+    assert s["status"] == "ok", s.get("instability")
+    e = s["energy"]
+    assert e["guard"] == "on" and 0.0 < e["above_rest_peak"] < e["floor"] / 2.0
 
 
 def watch_and_rows(scene, overrides=()):
@@ -68,8 +103,9 @@ def test_the_wave_starts_with_its_energy_and_trips_past_the_bound():
 
 
 def test_a_start_at_rest_that_trips_the_guard_by_a_few_floors_is_told_it_may_be_settling():
-    """A coarse tank at rest swings as its start settles, past the floor (3D, 10 particles deep: 5e-3 M g dx against
-    3e-3; docs/notes/user_scenes.md): the detail then names the remedies. A growth of more than three floors, or a
+    """A coarse tank at rest swings as its start settles (3D, 10 particles deep: 6.6e-3 M g dx, the floor's 1e-2 since
+    it scales with (dx / H)^2; docs/notes/user_scenes.md): one that still trips the guard by a few floors gets a
+    detail that names the remedies. A growth of more than three floors, or a
     start with energy of its own (the wave), gets the plain detail."""
     watch, state = watch_and_rows("hydrostatic_2d.yaml", ["solver=wcsph"])
     loop = LoopState()

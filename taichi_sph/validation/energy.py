@@ -61,6 +61,7 @@ class RestState:
     potential: float
     elastic: float
     known: bool
+    depth: float | None = None  # the settled fluid's depth along gravity (None: no gravity rest state)
 
 
 def _gravity_axis(cfg: Config) -> int | None:
@@ -137,7 +138,7 @@ def rest_state(cfg: Config, mass: np.ndarray, released: float = 0.0) -> RestStat
     still holds."""
     rest = _stacked_rest_state(cfg, mass)
     if rest.known and released:
-        return RestState(rest.potential - released, rest.elastic, True)
+        return RestState(rest.potential - released, rest.elastic, True, rest.depth)
     return rest
 
 
@@ -181,7 +182,7 @@ def _stacked_rest_state(cfg: Config, mass: np.ndarray) -> RestState:
         b = tait_b(rho0, cfg.sound_speed, cfg.fluid.gamma)
         rho = rho0 * (1.0 + pressure / b) ** (1.0 / cfg.fluid.gamma)
         elastic = elastic_energy(cfg, rho, m)
-    return RestState(potential, elastic, True)
+    return RestState(potential, elastic, True, float(top) if axis is not None else None)
 
 
 def tilted_rest_bound(g: np.ndarray, axis: int, lo: np.ndarray, hi: np.ndarray, mass: float) -> float:
@@ -217,11 +218,24 @@ def energy_input(cfg: Config) -> str | None:
 SETTLING = {"wcsph": 3e-3, "isph": 1e-3}
 
 
-def energy_floor(cfg: Config, fluid_mass: float) -> float:
+def settling_fraction(cfg: Config, depth: float | None = None) -> float:
+    """s of energy_floor: SETTLING[solver], and for WCSPH under gravity at least (dx / H)^2, H the settled depth.
+    A WCSPH start at rest is not its discrete equilibrium and swings as it settles, by ~0.31 (dx / H)^2 M g dx in
+    2D and ~0.66 (dx / H)^2 in 3D (tanks 10 / 20 / 40 particles deep, 2 s: 3.1e-3 / 8.3e-4 / 2.2e-4 in 2D,
+    6.6e-3 / 1.4e-3 in 3D at 10 / 20; docs/notes/user_scenes.md). The depth term exceeds 3e-3 only below ~18
+    particles deep, so a wave resolved finer than that keeps its guard."""
+    s = SETTLING[cfg.solver]
+    if cfg.solver == "wcsph" and depth is not None and depth > 0.0:
+        s = max(s, (cfg.particles.dx / depth) ** 2)
+    return s
+
+
+def energy_floor(cfg: Config, fluid_mass: float, depth: float | None = None) -> float:
     """The energy too small to call growth: M (s (|g| + omega^2 L) dx + 1e-6 U^2 / 2), the work of the body forces
     over a fraction s of dx plus a millionth of the kinetic energy at the scene's speed U (L: the domain's size).
-    WCSPH, s = 3e-3: a tank started at the ideal hydrostatic state settles 1.2e-3 dx above it (16 x 16 particles,
-    h = 2 dx, Fourtakas diffusion: +0.045 J = 1.2e-3 M g dx, then flat): a settling, not a growth. ISPH, s = 1e-3:
+    WCSPH, s = 3e-3 or (dx / H)^2 if larger (settling_fraction; H the settled depth): a tank started at the ideal
+    hydrostatic state settles 1.2e-3 dx above it (16 x 16 particles, h = 2 dx, Fourtakas diffusion: +0.045 J =
+    1.2e-3 M g dx, then flat): a settling, not a growth. ISPH, s = 1e-3:
     its tank settles 1e-5 M g dx (hydrostatic_2d, 2 s), but at h = 1.3 dx its summation density lifts a standing
     wave's fluid by up to 8e-4 M g dx at the crest phase and gives it back at the node (docs/isph.md); 1e-3 keeps
     that out and still sees the wave without shifting gain 43% (standing_wave_2d: 1.1 E0 + floor = 1.35 E0)."""
@@ -229,5 +243,5 @@ def energy_floor(cfg: Config, fluid_mass: float) -> float:
     size = float(np.linalg.norm(np.asarray(cfg.domain.hi, float) - np.asarray(cfg.domain.lo, float)))
     omega = cfg.central_force.omega
     u = cfg.expected_speed
-    settling = SETTLING[cfg.solver]
+    settling = settling_fraction(cfg, depth)
     return fluid_mass * (settling * (g + omega * omega * size) * cfg.particles.dx + 0.5e-6 * u * u)
