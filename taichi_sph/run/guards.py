@@ -9,6 +9,11 @@ import numpy as np
 from taichi_sph.config.schema import Config
 from taichi_sph.scene.bodies import FLUID
 
+# the flow Mach number U_peak / c0 past which a WCSPH density-error trip is put down to the sound speed: the
+# bundled dam breaks peak at 0.17-0.20 at their impacts with density errors of 6-7%; a user's drop thrown onto a
+# dry floor (docs/notes/user_scenes.md) peaked at 0.36 (10.7 m/s against c0 30 m/s) and tripped at 0.24, and
+# with c0 60 m/s ran with 0.076
+MACH_NOTE = 0.25
 
 def guard_violation(cfg: Config, solver, stats: dict) -> dict | None:
     """The first guard `stats` (solver.read_stats()) trips, as {criterion, detail}; None when all hold."""
@@ -25,6 +30,26 @@ def guard_violation(cfg: Config, solver, stats: dict) -> dict | None:
         return {"criterion": "density_error",
                 "detail": f"|rho - rho0|/rho0 = {stats['max_density_error']:.3g} > {g.max_density_error}"}
     return None
+
+
+def sound_speed_note(cfg: Config, peak_speed: float) -> str | None:
+    """Why a WCSPH density error grew, when the flow outran its sound speed: Ma = U_peak / c0 > MACH_NOTE, and
+    WCSPH's density error grows as Ma^2 (1% at Ma 0.1). The fix it names: declare the flow's peak speed as
+    fluid.reference_speed (c0 = c0_factor x it), or ISPH. None for ISPH or a flow inside the budget."""
+    c0 = cfg.sound_speed
+    if cfg.solver != "wcsph" or c0 <= 0.0 or not peak_speed / c0 > MACH_NOTE:  # a NaN peak: no note
+        return None
+    if cfg.fluid.c0 != "auto":
+        source = "fluid.c0"
+    elif cfg.fluid.reference_speed is not None:
+        source = f"{cfg.fluid.c0_factor:g} x fluid.reference_speed {cfg.fluid.reference_speed:g} m/s"
+    else:
+        source = f"{cfg.fluid.c0_factor:g} x sqrt(2 g H) over the domain's height, {cfg.expected_speed:.3g} m/s"
+    return (f"the flow reached {peak_speed:.3g} m/s, Mach {peak_speed / c0:.2f} against c0 {c0:.3g} m/s ({source}), "
+            f"and WCSPH's density error grows as Mach^2 (1% at Mach 0.1): declare the flow's peak speed "
+            f"(fluid.reference_speed: {peak_speed:.2g}; c0 then {cfg.fluid.c0_factor * peak_speed:.3g} m/s and the "
+            f"time step {cfg.fluid.c0_factor * peak_speed / c0:.2g}x shorter), or run ISPH (solver: isph), which has "
+            f"no sound speed")
 
 
 def allowed_outside(cfg: Config, solver) -> int:

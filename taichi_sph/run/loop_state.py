@@ -19,6 +19,7 @@ class LoopState:
     dts: list = field(default_factory=list)
     step_times: list = field(default_factory=list)
     max_rho_err: float = 0.0
+    peak_speed: float = 0.0               # the fluid's largest speed at the guard checks (guards.sound_speed_note)
     max_wall_crossings: int = 0           # fluid particles outside their wall box, most at one output time
     max_outside: int = 0                  # fluid particles outside the domain, most at one guard check
     outside_note: str = ""                # where the first one left (guards.left_domain_detail)

@@ -23,7 +23,7 @@ from taichi_sph.errors import EXIT_INTERRUPTED, EXIT_OK, EXIT_UNSTABLE, RenderUn
 from taichi_sph.run.checks import a_priori_checks
 from taichi_sph.run.disk import is_no_space, no_space_failure
 from taichi_sph.run.energy_watch import ENERGY_COLUMNS, EnergyWatch
-from taichi_sph.run.guards import culprit, domain_crossing, guard_violation, left_domain_detail
+from taichi_sph.run.guards import culprit, domain_crossing, guard_violation, left_domain_detail, sound_speed_note
 from taichi_sph.run.interrupt import sigint_calls
 from taichi_sph.run.lock import held
 from taichi_sph.run.loop_state import LoopState, RunResult
@@ -319,6 +319,8 @@ class Simulation:
         """Read the solver's stats and check the guards; the instability (with the culprit particle) or None."""
         solver = self.solver
         self.stats = solver.read_stats()
+        if np.isfinite(self.stats["max_speed"]):
+            self.loop.peak_speed = max(self.loop.peak_speed, self.stats["max_speed"])
         bad = guard_violation(self.cfg, solver, self.stats)
         if bad is None:
             self._note_particles_outside()
@@ -342,6 +344,8 @@ class Simulation:
         state = solver.host_state()
         if bad["criterion"] == "left_domain":
             bad = {**bad, "detail": left_domain_detail(self.cfg, state, solver.nsearch.escaped())}
+        elif bad["criterion"] == "density_error" and (note := sound_speed_note(self.cfg, self.loop.peak_speed)):
+            bad = {**bad, "detail": f"{bad['detail']}: {note}"}
         instability = {**bad, "step": solver.step_count, "t": solver.t,
                        "particle": culprit(self.cfg, state, bad["criterion"])}
         self.log(f"unstable at step {solver.step_count}, t = {solver.t:.4g} s: {bad['detail']}")
