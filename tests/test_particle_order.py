@@ -245,4 +245,20 @@ def test_a_drift_of_the_mean_density_is_warned_of():
     assert log.warnings() == []
     log.record(3.0, {**base, "interior_density_drift": 0.031})
     (w,) = log.warnings()
-    assert "drifted +3.1%" in w and "t = 3 s" in w
+    assert "drifted +3.1%" in w and "t = 3 s" in w and "(" not in w.split("volumes")[-1]
+
+
+@pytest.mark.parametrize("overrides, fragment", [
+    (["solver=wcsph", "shifting.enabled=true"], "does not see the shift's volume change"),
+    (["solver=wcsph"], "integrates div v"),
+    (["solver=wcsph", "wcsph.density=summation"], None),
+    (["solver=isph"], None),
+])
+def test_the_drift_warning_names_the_cause_of_the_run_s_density(overrides, fragment):
+    """The hint names shifting only where the run shifts (a WCSPH channel without shifting was told to turn it
+    off), the continuity density where it is WCSPH's, and nothing for a kernel-sum density."""
+    from taichi_sph.config import load_config
+    from taichi_sph.config.loader import bundled_configs_dir
+    from taichi_sph.validation.particle_order import density_drift_cause
+    cause = density_drift_cause(load_config(bundled_configs_dir() / "dam_break_2d.yaml", overrides))
+    assert (fragment in cause) if fragment else cause == ""

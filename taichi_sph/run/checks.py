@@ -2,9 +2,9 @@
 
 Each check judges one thing that can be known before the first step: `mach` (U / c0), `cfl_number` (the adaptive
 Courant number), `cfl_dt` / `force_dt` / `viscous_dt` (a fixed dt against its limits), `support` (neighbours per
-kernel support on the lattice), `neighbour_capacity`, `wall_layers` (wall thickness against the support) and
-`unbounded` (gravity with nothing to stop the fluid). A check is `severe` when the set-up cannot give a meaningful
-result: `taichi-sph run` refuses it (exit 2, one line; `--force` runs anyway) and `taichi-sph stability` reports it
+kernel support on the lattice), `neighbour_capacity`, `wall_layers` (wall thickness against the support),
+`unbounded` (gravity with nothing to stop the fluid) and `periodic_lattice` (a periodic length that dx does not
+divide). A check is `severe` when the set-up cannot give a meaningful result: `taichi-sph run` refuses it (exit 2, one line; `--force` runs anyway) and `taichi-sph stability` reports it
 as the reason it refused the case; the rest are warnings. The thresholds and their reasons: docs/notes/checks.md.
 """
 
@@ -32,7 +32,7 @@ MACH_SEVERE = 1.0
 @dataclass(frozen=True)
 class CheckResult:
     code: str          # short id: mach, cfl_number, cfl_dt, force_dt, viscous_dt, support,
-                       # neighbour_capacity, wall_layers, unbounded
+                       # neighbour_capacity, wall_layers, unbounded, periodic_lattice
     message: str
     severe: bool = False   # the run is very likely to blow up or give garbage
 
@@ -180,10 +180,30 @@ def _walls(cfg: Config) -> list[CheckResult]:
     return out
 
 
+def _periodic_lattice(cfg: Config) -> list[CheckResult]:
+    """A periodic length L that is not a whole number of dx: the lattice (round(L / dx) points a body spanning the
+    period gets) does not tile the period, and the rows either side of the seam start (L / dx - round(L / dx) + 1) dx
+    apart instead of dx."""
+    out: list[CheckResult] = []
+    dx = cfg.particles.dx
+    for a, per in enumerate(cfg.periodic):
+        if not per:
+            continue
+        length = cfg.domain.hi[a] - cfg.domain.lo[a]
+        n = length / dx
+        whole = max(1, round(n))
+        if abs(n - whole) > 1e-3:  # a thousandth of dx: float noise in L / dx, not a gap
+            out.append(CheckResult(
+                "periodic_lattice", f"the periodic length {length:g} m on axis {a} is {n:.5g} dx, not a whole number: "
+                f"a body across it starts {n - whole + 1.0:.2f} dx from its image across the seam instead of 1 dx; use "
+                f"particles.dx {length / whole:.6g} ({whole} across it)"))
+    return out
+
+
 def a_priori_checks(cfg: Config) -> list[CheckResult]:
     """Everything that can be judged before the first step."""
     return (_mach(cfg) + _time_step(cfg) + _support(cfg) + _neighbour_capacity(cfg) + _walls(cfg)
-            + _unbounded(cfg))
+            + _unbounded(cfg) + _periodic_lattice(cfg))
 
 
 def severe_checks(cfg: Config) -> list[CheckResult]:

@@ -36,7 +36,7 @@ from taichi_sph.scene.bodies import FLUID, build_particles, packing_note, wall_c
 from taichi_sph.solvers.registry import make_solver
 from taichi_sph.validation import diagnostics as diag
 from taichi_sph.validation.metrics import make_metrics, probe_value
-from taichi_sph.validation.particle_order import ORDER_COLUMNS, OrderProbe, ParticleOrderLog
+from taichi_sph.validation.particle_order import ORDER_COLUMNS, OrderProbe, ParticleOrderLog, density_drift_cause
 
 __all__ = ["LoopState", "Progress", "RunResult", "Simulation"]
 
@@ -433,7 +433,7 @@ class Simulation:
 
     def _end_warnings(self, status: str, crossings: int) -> None:
         """Fluid particles outside their wall box (at the end, or at output times), particle-order warnings, an energy
-        gain the guard's floor let pass."""
+        gain the guard's floor let pass, a WCSPH flow that outran its sound speed (guards.sound_speed_note)."""
         if status == "ok" and crossings:
             self.warnings.append(f"{crossings} fluid particles ended outside their wall box")
         elif status == "ok" and self.loop.max_wall_crossings:
@@ -442,10 +442,13 @@ class Simulation:
         if self.loop.max_outside:
             self.warnings.append(f"up to {self.loop.max_outside} fluid particles were outside the domain (within "
                                  f"guards.particles_outside); the first at {self.loop.outside_note}")
-        self.warnings.extend(w for w in self.order_log.warnings() if w not in self.warnings)
+        self.warnings.extend(w for w in self.order_log.warnings(density_drift_cause(self.cfg)) if w not in self.warnings)
         inside_floor = self.energy.growth_inside_floor(self.loop) if status == "ok" else None
         if inside_floor is not None:
             self.warnings.append(inside_floor)
+        fast = sound_speed_note(self.cfg, self.loop.peak_speed) if status == "ok" else None
+        if fast is not None:
+            self.warnings.append(f"max density error {self.loop.max_rho_err:.2g} at the output rows: {fast}")
 
     def _write_final(self, summary: dict, final: dict) -> None:
         """The last snapshot, the video, the timeseries closed, summary.json (status ok/unstable/interrupted)."""

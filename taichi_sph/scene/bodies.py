@@ -148,7 +148,7 @@ def build_particles(cfg: Config) -> ParticleArrays:
     volume, owner = np.concatenate(volumes), np.concatenate(owners)
     order = np.argsort(kind, kind="stable")
     x, v, kind, p, volume, owner = x[order], v[order], kind[order], p[order], volume[order], owner[order]
-    keep = _overlap_free(x, kind, min(dx, wall_dx))
+    keep = _overlap_free(x, kind, min(dx, wall_dx)) & _clear_of_walls(cfg, x, kind, 0.25 * dx)
     x, v, kind, p, volume, owner = x[keep], v[keep], kind[keep], p[keep], volume[keep], owner[keep]
     rho = cfg.fluid.rho0 * (1.0 + p / B) ** (1.0 / cfg.fluid.gamma) if cfg.solver == "wcsph" else np.full(len(p), cfg.fluid.rho0)
     # every particle starts with its lattice's volume (dx^dim; a hexagonal box's a' b'; a wall's (dx / r)^dim), so
@@ -180,6 +180,30 @@ def _overlap_free(x: np.ndarray, kind: np.ndarray, dx: float) -> np.ndarray:
     code = np.ravel_multi_index(tuple(cell.T), tuple(span))
     drop = (kind == FLUID) & np.isin(code, code[walls])
     return ~drop
+
+
+def _clear_of_walls(cfg: Config, x: np.ndarray, kind: np.ndarray, clearance: float) -> np.ndarray:
+    """The particles to keep: not a fluid particle inside a wall_block's box or closer than `clearance` to it, nor
+    one inside a wall_box's layers. _overlap_free finds the fluid particles on wall particles only where the two
+    lattices align: a wall_block at 0.045-0.055 m in a fluid at dx 0.7 mm left 225 fluid particles inside it, 0.52
+    dx from wall particles, and ISPH went non-finite at step 20. (A wall_block's lattice starts at each of its lower
+    faces, as a fluid block's does; a wall_box's layers are laid from its outer corner, so its upper faces' particles
+    sit off the face where dx does not divide the box, and a clearance there would open a gap.)"""
+    keep = np.ones(len(kind), dtype=bool)
+    fluid = kind == FLUID
+    for body in cfg.bodies:
+        if body.type == "wall_block":
+            lo = np.asarray(body.lo, float) - clearance
+            hi = np.asarray(body.hi, float) + clearance
+            keep &= ~(fluid & np.all((x > lo) & (x < hi), axis=1))
+        elif body.type == "wall_box":
+            outer_lo, outer_hi = (np.asarray(c, float) for c in cfg.wall_box_extent(body))
+            inner_lo, inner_hi = np.asarray(body.lo, float), np.asarray(body.hi, float)
+            if body.open_top:  # no wall above: the fluid may fill the box to its top and beyond
+                inner_hi[-1] = np.inf
+            in_layers = np.all((x > outer_lo) & (x < outer_hi), axis=1) & ~np.all((x >= inner_lo) & (x <= inner_hi), axis=1)
+            keep &= ~(fluid & in_layers)
+    return keep
 
 
 def wall_crossings(x: np.ndarray, kind: np.ndarray, cfg: Config) -> int:

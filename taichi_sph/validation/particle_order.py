@@ -303,6 +303,20 @@ class OrderProbe:
 
 
 # ----------------------------------------------------------------------------- over the run
+def density_drift_cause(cfg) -> str:
+    """What makes a run's mean interior density drift from its particles' volumes, as a hint: WCSPH's continuity
+    density (with the shift, which it does not see; without it, the integrated div v). '' for a density that is
+    a kernel sum (WCSPH's summation, ISPH's)."""
+    if cfg.solver != "wcsph" or cfg.wcsph.density != "continuity":
+        return ""
+    if cfg.shifting_enabled:
+        return ("WCSPH's continuity density with particle shifting does not see the shift's volume change; try "
+                "shifting off or `wcsph.density: summation`")
+    return ("WCSPH's continuity density integrates div v, not the particles' volumes; `wcsph.density: summation` "
+            "follows the volumes, and a stiffer fluid (a larger fluid.reference_speed or fluid.c0) compresses, and "
+            "drifts, less")
+
+
 @dataclass
 class ParticleOrderLog:
     """Extremes of the order columns over the output times (plain values: saved in checkpoints)."""
@@ -363,8 +377,9 @@ class ParticleOrderLog:
                 "interior_kernel_sum_error_max": self.interior_kernel_sum_error,
                 "interior_density_drift_extreme": self.density_drift, "interior_density_drift_t": self.density_drift_t}
 
-    def warnings(self) -> list[str]:
-        """One line each for a void, for clumping and for a drift of the mean density, if they appeared."""
+    def warnings(self, drift_cause: str = "") -> list[str]:
+        """One line each for a void, for clumping and for a drift of the mean density (with `drift_cause`:
+        density_drift_cause), if they appeared."""
         out = []
         if self.first_void_t is not None:
             out.append(f"particle order: void at t = {self.first_void_t:.4g} s (interior particles with a kernel sum "
@@ -376,6 +391,5 @@ class ParticleOrderLog:
         if self.density_drift is not None and abs(self.density_drift) > DENSITY_DRIFT_WARN:
             out.append(f"particle order: the interior fluid's mean density drifted {100 * self.density_drift:+.2g}% "
                        f"(at t = {self.density_drift_t:.4g} s; more than {100 * DENSITY_DRIFT_WARN:g}%): the density "
-                       f"no longer follows the particles' volumes (WCSPH's continuity density with particle shifting "
-                       f"does not see the shift's volume change; try shifting off or `wcsph.density: summation`)")
+                       f"no longer follows the particles' volumes" + (f" ({drift_cause})" if drift_cause else ""))
         return out
