@@ -159,6 +159,48 @@ def validate(cfg: Config, source: str) -> None:
             if length < support:
                 raise ConfigError(f"periodic length {length:g} on axis {a} is shorter than 3 smoothing lengths; "
                                   "use a smaller particles.dx", source=source, key="domain.periodic")
+    _check_wall_velocities(cfg, source)
+
+
+def _fluid_boxes(cfg: Config) -> list[tuple[list[float], list[float]]]:
+    """Each fluid body's bounding box (lo, hi)."""
+    boxes = []
+    for b in cfg.bodies:
+        if b.type == "fluid_block":
+            boxes.append((list(b.lo), list(b.hi)))
+        elif b.type == "fluid_sphere":
+            boxes.append(([c - b.radius for c in b.center], [c + b.radius for c in b.center]))
+    return boxes
+
+
+def _check_wall_velocities(cfg: Config, source: str) -> None:
+    """Refuse a wall velocity across a face the fluid touches. Wall particles never move: a wall's velocity is its
+    surface sliding along its faces (the cavity's lid; physics/walls.py). A velocity across a face would be a
+    piston or a moving tank, which the walls do not model: a user's piston pushing water at 0.3 m/s stayed in place
+    while its velocity pressed the fluid, and both solvers ended "unstable" (density error) within 0.4 s. Numeric
+    velocities only (an expression is not judged); faces across a periodic axis do not exist."""
+    tol = 0.5 * cfg.particles.dx
+    fluid = _fluid_boxes(cfg)
+    names = "xyz"
+    for i, b in enumerate(cfg.bodies):
+        if not b.type.startswith("wall") or b.velocity is None or any(isinstance(c, str) for c in b.velocity):
+            continue
+        for a in range(cfg.dim):
+            if b.velocity[a] == 0 or cfg.periodic[a]:
+                continue
+            for plane in (b.lo[a], b.hi[a]):
+                if b.type == "wall_box" and b.open_top and a == cfg.dim - 1 and plane == b.hi[a]:
+                    continue
+                for lo, hi in fluid:
+                    near = lo[a] - tol <= plane <= hi[a] + tol
+                    across = all(min(hi[c], b.hi[c]) - max(lo[c], b.lo[c]) > tol for c in range(cfg.dim) if c != a)
+                    if near and across:
+                        raise ConfigError(
+                            f"the {b.type}'s velocity {list(b.velocity)} m/s crosses its face at {names[a]} = {plane:g} "
+                            f"m, which the fluid touches: wall particles never move, and a wall's velocity is its "
+                            f"surface sliding along its faces (a lid's), so a piston, a wave maker or a moving tank is "
+                            f"not modelled; give the wall a velocity along the faces the fluid touches only",
+                            source=source, key=f"bodies[{i}].velocity")
 
 
 def _check_velocity_expressions(b: Body, dim: int, key: str, source: str) -> None:
