@@ -4,8 +4,9 @@ Each check judges one thing that can be known before the first step: `mach` (U /
 Courant number), `cfl_dt` / `force_dt` / `viscous_dt` (a fixed dt against its limits), `support` (neighbours per
 kernel support on the lattice), `neighbour_capacity`, `wall_layers` (wall thickness against the support),
 `unbounded` (gravity with nothing to stop the fluid) and `periodic_lattice` (a periodic length that dx does not
-divide). A check is `severe` when the set-up cannot give a meaningful result: `taichi-sph run` refuses it (exit 2, one line; `--force` runs anyway) and `taichi-sph stability` reports it
-as the reason it refused the case; the rest are warnings. The thresholds and their reasons: docs/notes/checks.md.
+divide). A check is `severe` when the set-up cannot give a meaningful result: `taichi-sph run` refuses it (exit 2,
+one line; `--force` runs anyway) and `taichi-sph stability` reports it as the reason it refused the case; the rest
+are warnings. The thresholds and their reasons: docs/notes/checks.md.
 """
 
 from __future__ import annotations

@@ -3,7 +3,8 @@ row, its start, peak and last value kept in the loop state, and the growth that 
 "unstable" (`guards.energy_growth`):
     E(t) - E_rest > (1 + growth) (E(0) - E_rest) + floor,
 floor = energy_floor (the body forces' work over 3e-3 dx for WCSPH, or over (dx / H)^2 dx if larger, H the settled
-depth; over 1e-3 dx for ISPH; and a millionth of the kinetic energy at the scene's speed). A closed flow only loses energy to viscosity, diffusion and impacts; a gain is the scheme's.
+depth; over 1e-3 dx for ISPH; and a millionth of the kinetic energy at the scene's speed). A closed flow only loses
+energy to viscosity, diffusion and impacts; a gain is the scheme's.
 
 E - E_rest is taken no smaller than the kinetic energy E_k: the true rest state is the minimum of E_p + E_e, so
 E_k <= E - E_rest always. The estimated rest state can sit above that minimum (WCSPH's compressed column sits

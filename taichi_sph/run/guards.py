@@ -15,6 +15,7 @@ from taichi_sph.scene.bodies import FLUID
 # with c0 60 m/s ran with 0.076
 MACH_NOTE = 0.25
 
+
 def guard_violation(cfg: Config, solver, stats: dict) -> dict | None:
     """The first guard `stats` (solver.read_stats()) trips, as {criterion, detail}; None when all hold."""
     g = cfg.guards

@@ -442,7 +442,8 @@ class Simulation:
         if self.loop.max_outside:
             self.warnings.append(f"up to {self.loop.max_outside} fluid particles were outside the domain (within "
                                  f"guards.particles_outside); the first at {self.loop.outside_note}")
-        self.warnings.extend(w for w in self.order_log.warnings(density_drift_cause(self.cfg)) if w not in self.warnings)
+        order = self.order_log.warnings(density_drift_cause(self.cfg))
+        self.warnings.extend(w for w in order if w not in self.warnings)
         inside_floor = self.energy.growth_inside_floor(self.loop) if status == "ok" else None
         if inside_floor is not None:
             self.warnings.append(inside_floor)

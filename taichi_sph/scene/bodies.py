@@ -201,8 +201,9 @@ def _clear_of_walls(cfg: Config, x: np.ndarray, kind: np.ndarray, clearance: flo
             inner_lo, inner_hi = np.asarray(body.lo, float), np.asarray(body.hi, float)
             if body.open_top:  # no wall above: the fluid may fill the box to its top and beyond
                 inner_hi[-1] = np.inf
-            in_layers = np.all((x > outer_lo) & (x < outer_hi), axis=1) & ~np.all((x >= inner_lo) & (x <= inner_hi), axis=1)
-            keep &= ~(fluid & in_layers)
+            in_shell = np.all((x > outer_lo) & (x < outer_hi), axis=1)
+            in_box = np.all((x >= inner_lo) & (x <= inner_hi), axis=1)
+            keep &= ~(fluid & in_shell & ~in_box)
     return keep
 
 
