@@ -162,17 +162,6 @@ def validate(cfg: Config, source: str) -> None:
     _check_wall_velocities(cfg, source)
 
 
-def _fluid_boxes(cfg: Config) -> list[tuple[list[float], list[float]]]:
-    """Each fluid body's bounding box (lo, hi)."""
-    boxes = []
-    for b in cfg.bodies:
-        if b.type == "fluid_block":
-            boxes.append((list(b.lo), list(b.hi)))
-        elif b.type == "fluid_sphere":
-            boxes.append(([c - b.radius for c in b.center], [c + b.radius for c in b.center]))
-    return boxes
-
-
 def _check_wall_velocities(cfg: Config, source: str) -> None:
     """Refuse a wall velocity across a face the fluid touches. Wall particles never move: a wall's velocity is its
     surface sliding along its faces (the cavity's lid; physics/walls.py). A velocity across a face would be a
@@ -180,7 +169,7 @@ def _check_wall_velocities(cfg: Config, source: str) -> None:
     while its velocity pressed the fluid, and both solvers ended "unstable" (density error) within 0.4 s. Numeric
     velocities only (an expression is not judged); faces across a periodic axis do not exist."""
     tol = 0.5 * cfg.particles.dx
-    fluid = _fluid_boxes(cfg)
+    fluid = [_body_bounds(b) for b in cfg.bodies if b.type.startswith("fluid")]
     names = "xyz"
     for i, b in enumerate(cfg.bodies):
         if not b.type.startswith("wall") or b.velocity is None or any(isinstance(c, str) for c in b.velocity):

@@ -48,6 +48,7 @@ from dataclasses import dataclass
 import numpy as np
 import taichi as ti
 
+from taichi_sph.config.schema import Config
 from taichi_sph.physics.free_surface import SURFACE_CANDIDATE, in_surface_cone, kernel_sum_ratio
 from taichi_sph.scene.bodies import FLUID
 from taichi_sph.scene.lattice import lattice_kernel_sum
@@ -303,7 +304,7 @@ class OrderProbe:
 
 
 # ----------------------------------------------------------------------------- over the run
-def density_drift_cause(cfg) -> str:
+def density_drift_cause(cfg: Config) -> str:
     """What makes a run's mean interior density drift from its particles' volumes, as a hint: WCSPH's continuity
     density (with the shift, which it does not see; without it, the integrated div v). '' for a density that is
     a kernel sum (WCSPH's summation, ISPH's)."""
