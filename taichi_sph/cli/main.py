@@ -178,8 +178,10 @@ def cmd_run(args) -> int:
     preflight(cfg, force=args.force, render=not args.no_render and cfg.render.enabled)
     if args.explain:
         from taichi_sph.scene.bodies import build_particles, packing_note
+        from taichi_sph.scene.confinement import confined_shifting
         from taichi_sph.sph.features import Features
         arrays = build_particles(cfg)
+        cfg = confined_shifting(cfg, arrays)
         feats = Features.from_config(cfg, arrays.n_wall)
         print(f"{cfg.name}: {cfg.solver}, {arrays.n_fluid} fluid + {arrays.n_wall} wall particles, "
               f"{cfg.particles.packing} packing{packing_note(cfg)}")

@@ -16,6 +16,9 @@ AUTO = "auto"
 # ISPH's Monaghan viscosity acts on every pair, WCSPH's on approaching pairs: the shared alpha halved gives ISPH
 # the same shear viscosity (Config.artificial_viscosity)
 ISPH_SHARED_ALPHA_FACTOR = 0.5
+# A of the particle shift when a scene sets none (shifting.coefficient); the shift WCSPH turns on itself in a fluid
+# that fills its container takes scene/confinement.py's CONFINED_SHIFT_COEFFICIENT
+SHIFTING_COEFFICIENT = 2.0
 
 # h / dx when a scene does not set particles.hdx. WCSPH, 2.0 (~50 neighbours in 2D): at 1.3 (~21) a standing wave
 # with no diffusion and no shifting turned its lattice into noise within half a period (kinetic energy 2 -> 5 J,
@@ -197,12 +200,20 @@ class TensileCorrection:
 
 @dataclass(frozen=True)
 class Shifting:
-    enabled: bool | None = opt(None, "particle shifting (Lind et al. 2012 form, free-surface aware); None = on for ISPH, off for WCSPH")
+    enabled: bool | None = opt(None, "particle shifting (Lind et al. 2012 form, free-surface aware); None = on for ISPH; for "
+                                     "WCSPH on where the fluid fills its container (no free surface at the start, hence "
+                                     "none in the run: scene/confinement.py) and the scene does not take the transport "
+                                     "velocity, off otherwise (a shift moves a dam break's front ahead and feeds a wave: "
+                                     "docs/wcsph.md)")
     model: str = opt("skillen", "the speed in the diffusion coefficient D = A h U dt: the particle's own |v_a| (Skillen et al. "
                                 "2013; vanishes at stagnation points, where a stretched lattice then stays as it is) or the "
                                 "largest fluid speed of the step (Sun et al. 2017, delta+-SPH: CFL Ma (2h)^2 = 4 h U dt)",
                      choices=("skillen", "sun"))
-    coefficient: float = opt(2.0, "A in the shift dr_a = -D grad C_a with D = A h U dt (U: see shifting.model)", minimum=0.0)
+    coefficient: float | None = opt(None, "A in the shift dr_a = -D grad C_a with D = A h U dt (U: see shifting.model); "
+                                          "None = 2, or 20 for the shift WCSPH turns on itself in a fluid that fills its "
+                                          "container (`enabled` unset: the lid-driven cavity's and the Taylor-Green "
+                                          "vortex's A; a channel past an obstacle keeps its wake's particles apart with "
+                                          "it, docs/wcsph.md)", minimum=0.0)
     max_shift: float = opt(0.1, "cap on |dr_a| per step, as a fraction of dx", positive=True)
     walls: str = opt(AUTO, "what grad C sees of a container wall (wall_box): its wall particles, or 'mirror', the images "
                            "of the fluid in the faces the support meets: a free-slip wall is the fluid's mirror, and the "
@@ -753,7 +764,8 @@ class Config:
     @property
     def shifting_coefficient(self) -> float:
         """A of the particle shift for this run's solver (isph.shifting_coefficient or shifting.coefficient)."""
-        return self.for_solver("shifting_coefficient", self.shifting.coefficient)
+        shared = SHIFTING_COEFFICIENT if self.shifting.coefficient is None else self.shifting.coefficient
+        return self.for_solver("shifting_coefficient", shared)
 
     @property
     def checkpoint_interval(self) -> float | None:
