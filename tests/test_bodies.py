@@ -9,16 +9,17 @@ from taichi_sph.run.checks import a_priori_checks
 from taichi_sph.scene.bodies import FLUID, build_particles
 
 
-def _channel(dx: float) -> dict:
-    """A user's periodic channel 0.1 x 0.04 m between wall plates, a 1 cm square obstacle at 0.045-0.055 m."""
+def channel(dx: float, fluid_top: float = 0.04, **extra) -> dict:
+    """A user's periodic channel 0.1 x 0.04 m between wall plates (the fluid up to `fluid_top`), a 1 cm square
+    obstacle at 0.045-0.055 m, driven by a body force 0.25 m/s^2 along x; `extra`: more top-level keys."""
     return {"name": "channel", "dim": 2, "domain": {"lo": [0.0, -0.006], "hi": [0.1, 0.046], "periodic": [True, False]},
             "particles": {"dx": dx}, "fluid": {"rho0": 1000.0, "nu": 1.0e-3, "reference_speed": 0.05},
             "gravity": [0.25, 0.0],
-            "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.1, 0.04]},
+            "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.1, fluid_top]},
                        {"type": "wall_block", "lo": [0.0, -0.005], "hi": [0.1, 0.0]},
                        {"type": "wall_block", "lo": [0.0, 0.04], "hi": [0.1, 0.045]},
                        {"type": "wall_block", "lo": [0.045, 0.015], "hi": [0.055, 0.025]}],
-            "time": {"t_end": 0.1}}
+            "time": {"t_end": 0.1}, **extra}
 
 
 def _closest_to_walls(a, period: float) -> float:
@@ -34,7 +35,7 @@ def test_no_fluid_inside_a_wall_block_whatever_dx(dx, fluid):
     """Fluid on wall sites was found only where the lattices align: at dx 0.7 mm (the obstacle 14.3 dx across)
     225 fluid particles stayed inside the obstacle, 0.52 dx from wall particles, and ISPH went non-finite at step
     20. Fluid within dx / 4 of a wall body goes; where the lattices align the count is the lattice's."""
-    a = build_particles(config_from_dict(_channel(dx)))
+    a = build_particles(config_from_dict(channel(dx)))
     x = a.x[a.kind == FLUID]
     inside = np.all((x > [0.045 - 0.25 * dx, 0.015 - 0.25 * dx]) & (x < [0.055 + 0.25 * dx, 0.025 + 0.25 * dx]), axis=1)
     assert not inside.any()
@@ -44,7 +45,7 @@ def test_no_fluid_inside_a_wall_block_whatever_dx(dx, fluid):
 
 
 def test_a_periodic_length_dx_does_not_divide_is_warned_about_with_the_dx_that_does():
-    checks = {c.code: c.message for c in a_priori_checks(config_from_dict(_channel(0.0007)))}
+    checks = {c.code: c.message for c in a_priori_checks(config_from_dict(channel(0.0007)))}
     assert "142.86 dx, not a whole number" in checks["periodic_lattice"]
     assert "0.86 dx from its image" in checks["periodic_lattice"] and "particles.dx 0.000699301" in checks["periodic_lattice"]
-    assert "periodic_lattice" not in {c.code for c in a_priori_checks(config_from_dict(_channel(0.001)))}
+    assert "periodic_lattice" not in {c.code for c in a_priori_checks(config_from_dict(channel(0.001)))}

@@ -307,13 +307,10 @@ def test_auto_sound_speed_covers_the_body_force_over_the_fluid():
     """c0 = c0_factor x max(reference speed, sqrt(|g| L)), L the fluid's extent along g (Morris, Fox & Zhu 1997):
     a channel driven along its periodic axis at 0.05 m/s by g = 0.25 m/s^2 over 0.1 m gets 1.58 m/s, not 0.5
     (at 0.5 a user's channel past an obstacle ran with a 15% density error and a flux 16% high)."""
+    from test_bodies import channel as channel_scene
+
     from taichi_sph.config.loader import config_from_dict
-    channel = config_from_dict({
-        "name": "channel", "dim": 2, "domain": {"lo": [0.0, -0.006], "hi": [0.1, 0.046], "periodic": [True, False]},
-        "particles": {"dx": 0.001}, "fluid": {"rho0": 1000.0, "nu": 1e-3, "reference_speed": 0.05},
-        "gravity": [0.25, 0.0], "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.1, 0.04]},
-                                           {"type": "wall_block", "lo": [0.0, -0.005], "hi": [0.1, 0.0]},
-                                           {"type": "wall_block", "lo": [0.0, 0.04], "hi": [0.1, 0.045]}]})
+    channel = config_from_dict(channel_scene(0.001))
     assert channel.body_force_speed == pytest.approx(math.sqrt(0.25 * 0.1))
     assert channel.sound_speed == pytest.approx(10.0 * math.sqrt(0.025))
     tilted = config_from_dict({

@@ -5,6 +5,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from test_bodies import channel
 
 from taichi_sph.config.loader import config_from_dict, load_config
 from taichi_sph.run.simulation import Simulation
@@ -13,18 +14,6 @@ from taichi_sph.scene.confinement import CONFINED_SHIFT_COEFFICIENT, confined_sh
 from taichi_sph.sph.features import Features
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
-
-
-def _channel(dx: float = 0.002, fluid_top: float = 0.04, **extra) -> dict:
-    """A user's periodic channel 0.1 x 0.04 m between wall plates, a 1 cm square obstacle in the middle."""
-    return {"name": "channel", "dim": 2, "domain": {"lo": [0.0, -0.006], "hi": [0.1, 0.046], "periodic": [True, False]},
-            "particles": {"dx": dx}, "fluid": {"rho0": 1000.0, "nu": 1.0e-3, "reference_speed": 0.05},
-            "gravity": [0.25, 0.0],
-            "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.1, fluid_top]},
-                       {"type": "wall_block", "lo": [0.0, -0.005], "hi": [0.1, 0.0]},
-                       {"type": "wall_block", "lo": [0.0, 0.04], "hi": [0.1, 0.045]},
-                       {"type": "wall_block", "lo": [0.045, 0.015], "hi": [0.055, 0.025]}],
-            "time": {"t_end": 0.1}, **extra}
 
 
 def _fills(cfg) -> bool:
@@ -40,14 +29,14 @@ def test_the_bundled_scenes_that_fill_their_container(name, fills):
 
 
 def test_a_gap_of_a_few_rows_under_the_lid_is_a_free_surface():
-    assert _fills(config_from_dict(_channel()))
-    assert not _fills(config_from_dict(_channel(fluid_top=0.034)))  # 3 rows of air under the top plate
+    assert _fills(config_from_dict(channel(0.002)))
+    assert not _fills(config_from_dict(channel(0.002, fluid_top=0.034)))  # 3 rows of air under the top plate
 
 
 def test_an_open_domain_face_is_a_free_surface():
     """Without the periodic x the fluid's ends face the domain's open faces: not confined; in 3D a closed box is, an open
     top or air under the lid is not."""
-    d = _channel()
+    d = channel(0.002)
     d["domain"]["periodic"] = [False, False]
     assert not _fills(config_from_dict(d))
     box = {"name": "box3d", "dim": 3, "domain": {"lo": [0, 0, 0], "hi": [0.14, 0.14, 0.14]}, "particles": {"dx": 0.01},
@@ -62,7 +51,7 @@ def test_an_open_domain_face_is_a_free_surface():
 
 
 def test_wcsph_turns_its_shift_on_only_where_the_fluid_fills_its_container():
-    confined = config_from_dict(_channel())
+    confined = config_from_dict(channel(0.002))
     resolved = confined_shifting(confined, build_particles(confined))
     assert resolved.shifting.enabled and resolved.shifting_coefficient == CONFINED_SHIFT_COEFFICIENT == 20.0
     assert resolved.shifting_model == "skillen" and Features.from_config(resolved, 1).shifting
@@ -70,13 +59,13 @@ def test_wcsph_turns_its_shift_on_only_where_the_fluid_fills_its_container():
     # a scene's own choice stands: off, on (with A 2 unless set), or its own A
     for shifting, expected in [({"enabled": False}, (False, 2.0)), ({"enabled": True}, (True, 2.0)),
                                ({"coefficient": 5.0}, (True, 5.0))]:
-        cfg = config_from_dict(_channel(shifting=shifting))
+        cfg = config_from_dict(channel(0.002, shifting=shifting))
         r = confined_shifting(cfg, build_particles(cfg))
         assert (r.shifting_enabled, r.shifting_coefficient) == expected, shifting
     # a free surface: off; ISPH: on with A 2 as before; the transport velocity regularises by itself
-    free = config_from_dict(_channel(fluid_top=0.03))
+    free = config_from_dict(channel(0.002, fluid_top=0.03))
     assert not confined_shifting(free, build_particles(free)).shifting_enabled
-    isph = config_from_dict(_channel(solver="isph"))
+    isph = config_from_dict(channel(0.002, solver="isph"))
     r = confined_shifting(isph, build_particles(isph))
     assert r.shifting_enabled and r.shifting_coefficient == 2.0
     cavity = load_config(CONFIGS / "cavity_re1000_2d.yaml")
@@ -87,7 +76,7 @@ def test_a_confined_wcsph_flow_keeps_its_wake_in_order(tmp_path):
     """The channel at dx 2 mm (20 particles across, the obstacle 5), body force 0.25 m/s^2, to t = 0.6 s, WCSPH with
     physical keys only. Without the shift the wake's particles pair up (the closest pair at the outputs 0.47 / 0.37 /
     0.32 dx at t = 0.2 / 0.4 / 0.5 s, 0.089 by 1 s); with the confined default (A 20) it stays above 0.65 dx."""
-    cfg = config_from_dict(_channel(time={"t_end": 0.6}, output={"every": 0.1}))
+    cfg = config_from_dict(channel(0.002, time={"t_end": 0.6}, output={"every": 0.1}))
     s = Simulation(cfg, tmp_path, render=False, quiet=True).run().summary
     assert s["status"] == "ok"
     assert s["particle_order"]["min_pair_distance_dx"] > 0.5
