@@ -699,6 +699,18 @@ class Config:
         return self.fluid.c0_factor * max(self.expected_speed, self.body_force_speed)
 
     @property
+    def sound_speed_source(self) -> str:
+        """Where `sound_speed` came from, for messages: the key, or the speed scale c0_factor multiplied."""
+        if self.fluid.c0 != AUTO:
+            return "fluid.c0"
+        factor = f"{self.fluid.c0_factor:g} x"
+        if self.body_force_speed > self.expected_speed:
+            return f"{factor} sqrt(|g| L) {self.body_force_speed:.3g} m/s, the body force over the fluid"
+        if self.fluid.reference_speed is not None:
+            return f"{factor} fluid.reference_speed {self.fluid.reference_speed:g} m/s"
+        return f"{factor} sqrt(2 g H) over the domain's height, {self.expected_speed:.3g} m/s"
+
+    @property
     def body_force_speed(self) -> float:
         """sqrt(|g| L), L the fluid bodies' extent along g: the body force's pressure over the fluid, rho |g| L, is
         rho c0^2 / c0_factor^2 at c0 = c0_factor x this. Under gravity onto a floor it is sqrt(|g| H) and the

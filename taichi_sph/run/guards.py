@@ -40,16 +40,8 @@ def sound_speed_note(cfg: Config, peak_speed: float) -> str | None:
     c0 = cfg.sound_speed
     if cfg.solver != "wcsph" or c0 <= 0.0 or not peak_speed / c0 > MACH_NOTE:  # a NaN peak: no note
         return None
-    if cfg.fluid.c0 != "auto":
-        source = "fluid.c0"
-    elif cfg.body_force_speed > cfg.expected_speed:
-        source = f"{cfg.fluid.c0_factor:g} x sqrt(|g| L) {cfg.body_force_speed:.3g} m/s, the body force over the fluid"
-    elif cfg.fluid.reference_speed is not None:
-        source = f"{cfg.fluid.c0_factor:g} x fluid.reference_speed {cfg.fluid.reference_speed:g} m/s"
-    else:
-        source = f"{cfg.fluid.c0_factor:g} x sqrt(2 g H) over the domain's height, {cfg.expected_speed:.3g} m/s"
     need = peak_speed / (cfg.fluid.c0_factor * MACH_NOTE)  # the reference speed that puts this peak at MACH_NOTE
-    return (f"the flow reached {peak_speed:.3g} m/s, Mach {peak_speed / c0:.2f} against c0 {c0:.3g} m/s ({source}), "
+    return (f"the flow reached {peak_speed:.3g} m/s, Mach {peak_speed / c0:.2f} against c0 {c0:.3g} m/s ({cfg.sound_speed_source}), "
             f"and WCSPH's density error grows as Mach^2 (1% at Mach 0.1): declare fluid.reference_speed >= "
             f"{need:.2g} m/s (Mach {MACH_NOTE:g} at this peak; c0 then {cfg.fluid.c0_factor * need:.3g} m/s and the "
             f"time step {cfg.fluid.c0_factor * need / c0:.2g}x shorter), or run ISPH (solver: isph), which has no "
