@@ -251,6 +251,7 @@ def test_a_drift_of_the_mean_density_is_warned_of():
 @pytest.mark.parametrize("overrides, fragment", [
     (["solver=wcsph", "shifting.enabled=true"], "does not see the shift's volume change"),
     (["solver=wcsph"], "integrates div v"),
+    (["solver=wcsph", "shifting.enabled=true", "shifting.density=continuity"], "integrates div v"),
     (["solver=wcsph", "wcsph.density=summation"], None),
     (["solver=isph"], None),
 ])

@@ -310,9 +310,9 @@ def density_drift_cause(cfg: Config) -> str:
     a kernel sum (WCSPH's summation, ISPH's)."""
     if cfg.solver != "wcsph" or cfg.wcsph.density != "continuity":
         return ""
-    if cfg.shifting_enabled:
+    if cfg.shifting_enabled and cfg.shifting.density != "continuity":  # 'continuity': the density follows the shift
         return ("WCSPH's continuity density with particle shifting does not see the shift's volume change; try "
-                "shifting off or `wcsph.density: summation`")
+                "`wcsph.density: summation`, `shifting.density: continuity` or shifting off")
     return ("WCSPH's continuity density integrates div v, not the particles' volumes; `wcsph.density: summation` "
             "follows the volumes, and a stiffer fluid (a larger fluid.reference_speed or fluid.c0) compresses, and "
             "drifts, less")
