@@ -11,7 +11,6 @@ from taichi_sph.config.loader import config_from_dict, load_config
 from taichi_sph.run.simulation import Simulation
 from taichi_sph.scene.bodies import build_particles
 from taichi_sph.scene.confinement import CONFINED_SHIFT_COEFFICIENT, confined_shifting, fills_container
-from taichi_sph.solvers.registry import make_solver
 from taichi_sph.sph.features import Features
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -84,14 +83,3 @@ def test_a_confined_wcsph_flow_keeps_its_wake_in_order(tmp_path):
     shifting = yaml.safe_load((tmp_path / "config.yaml").read_text())["shifting"]  # the decision, for a rerun
     assert shifting["enabled"] is True and shifting["coefficient"] == 20.0
 
-
-def test_the_confined_shift_skips_the_free_surface_pass():
-    """No free surface to flag in a fluid that fills its container: WCSPH's shift leaves out the kernel-sum pass
-    that finds one (a neighbour loop a step: ~10% of the channel's step), ISPH and a free-surface scene keep it."""
-    def shifting_of(d: dict):
-        cfg = config_from_dict(d)
-        return make_solver(cfg, build_particles(cfg)).shifting
-
-    assert shifting_of(channel(0.002)).no_surface
-    assert not shifting_of(channel(0.002, fluid_top=0.03, shifting={"enabled": True})).no_surface
-    assert not shifting_of(channel(0.002, solver="isph")).no_surface

@@ -25,7 +25,7 @@ CELL_FACTOR = 1.5
 # A of the shift WCSPH turns on itself in a confined fluid (D = A h |v_a| dt, Skillen et al.'s particle speed): the
 # lid-driven cavity's and the Taylor-Green vortex's A. A user's channel past a square obstacle (dx 1 mm, 3 s): with
 # A 2 particles pair up in the slow wake (0.002 dx, 25 pairs closer than dx / 2), with 20 none (closest 0.68 dx),
-# flux +1.9% of the Stokes reference (without the shift -4.8%); a cavity written without its shifting key: A 2
+# flux +1.9% of the Stokes reference (without the shift -4.5%); a cavity written without its shifting key: A 2
 # 0.040 RMS against Ghia (no shift 0.012, A 20 0.0028): docs/wcsph.md
 CONFINED_SHIFT_COEFFICIENT = 20.0
 
@@ -53,20 +53,18 @@ def fills_container(cfg: Config, arrays: ParticleArrays) -> bool:
     return True
 
 
-def confined_shifting(cfg: Config, arrays: ParticleArrays, fills: bool | None = None) -> Config:
+def confined_shifting(cfg: Config, arrays: ParticleArrays) -> Config:
     """`shifting.enabled` left unset (None) decided for this scene: on for ISPH; for WCSPH on where the fluid fills
     its container (`fills_container`) and the scene does not take Adami's transport velocity (which regularises the
     arrangement itself and refuses a shift), off otherwise. The shift WCSPH turns on itself takes A =
     CONFINED_SHIFT_COEFFICIENT where the scene sets none. The returned config carries the decisions, so the run
-    folder's config.yaml repeats them. `fills`: fills_container's answer where the caller has it."""
+    folder's config.yaml repeats them."""
     sh = cfg.shifting
     if sh.enabled is not None:
         return cfg
     if cfg.solver == "isph":
         return replace(cfg, shifting=replace(sh, enabled=True))
-    if fills is None:
-        fills = fills_container(cfg, arrays)
-    if cfg.wcsph.transport_velocity or not fills:
+    if cfg.wcsph.transport_velocity or not fills_container(cfg, arrays):
         return replace(cfg, shifting=replace(sh, enabled=False))
     coefficient = CONFINED_SHIFT_COEFFICIENT if sh.coefficient is None else sh.coefficient
     return replace(cfg, shifting=replace(sh, enabled=True, coefficient=coefficient))
