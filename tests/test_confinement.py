@@ -11,6 +11,7 @@ from taichi_sph.config.loader import config_from_dict, load_config
 from taichi_sph.run.simulation import Simulation
 from taichi_sph.scene.bodies import build_particles
 from taichi_sph.scene.confinement import CONFINED_SHIFT_COEFFICIENT, confined_shifting, fills_container
+from taichi_sph.solvers.registry import make_solver
 from taichi_sph.sph.features import Features
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -83,3 +84,11 @@ def test_a_confined_wcsph_flow_keeps_its_wake_in_order(tmp_path):
     shifting = yaml.safe_load((tmp_path / "config.yaml").read_text())["shifting"]  # the decision, for a rerun
     assert shifting["enabled"] is True and shifting["coefficient"] == 20.0
 
+
+
+def test_a_solver_built_without_the_run_takes_the_confined_shift():
+    """bench, view and the real-time measure build a solver from the scene's own config: its shift must be the one a
+    run gets (A 20), not the shared default A 2 of the unresolved config."""
+    cfg = config_from_dict(channel(0.002))
+    solver = make_solver(cfg, build_particles(cfg))
+    assert solver.cfg.shifting_enabled and solver.shifting.coefficient == CONFINED_SHIFT_COEFFICIENT

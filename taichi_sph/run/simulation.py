@@ -33,7 +33,6 @@ from taichi_sph.run.runtime import current_arch_name, init_taichi
 from taichi_sph.run.settle import settle_particles
 from taichi_sph.run.summary import conservation, dt_range, step_timing
 from taichi_sph.scene.bodies import FLUID, build_particles, packing_note, wall_crossings
-from taichi_sph.scene.confinement import confined_shifting
 from taichi_sph.solvers.registry import make_solver
 from taichi_sph.validation import diagnostics as diag
 from taichi_sph.validation.metrics import make_metrics, probe_value
@@ -49,7 +48,7 @@ class Simulation:
 
     def __init__(self, cfg: Config, out_dir: Path | None = None, *, render: bool = True, quiet: bool = False,
                  snapshots: bool = True, log=None) -> None:
-        self.cfg = self.cfg_given = cfg
+        self.cfg = cfg
         self.out_dir = Path(out_dir) if out_dir is not None else None
         self.render_enabled = render and cfg.render.enabled and out_dir is not None
         self.quiet = quiet
@@ -108,15 +107,17 @@ class Simulation:
             self.warnings = list(resume.meta["warnings"])
         init_taichi(cfg.arch, cfg.precision)
         arrays = build_particles(cfg)
-        cfg = self.cfg = confined_shifting(cfg, arrays)
-        if resume is None and cfg.solver == "wcsph" and cfg.shifting_enabled and self.cfg_given.shifting.enabled is None:
-            self.log(f"shifting: on ({cfg.shifting_model}, A {cfg.shifting_coefficient:g}): "
-                     "the fluid fills its container (no free surface); `shifting.enabled: false` turns it off")
         self.settle_s = cfg.particles.settle if cfg.solver == "wcsph" else 0.0  # ISPH starts as packed
         if resume is None and self.settle_s > 0.0:
             arrays = settle_particles(cfg, arrays, self.log)
         t_setup = time.perf_counter()
         solver = make_solver(cfg, arrays)
+        # the solver decides what the scene left 'auto' from its particles (scene/confinement.py): the run reads it
+        shift_unset = cfg.shifting.enabled is None
+        cfg = self.cfg = solver.cfg
+        if resume is None and cfg.solver == "wcsph" and cfg.shifting_enabled and shift_unset:
+            self.log(f"shifting: on ({cfg.shifting_model}, A {cfg.shifting_coefficient:g}): "
+                     "the fluid fills its container (no free surface); `shifting.enabled: false` turns it off")
         self.metrics = make_metrics(cfg) if resume is None else pickle.loads(resume.meta["metrics"])
         self.released = arrays.released if resume is None else float(resume.meta.get("released", 0.0))
         for m in self.metrics:

@@ -48,7 +48,7 @@ def fills_container(cfg: Config, arrays: ParticleArrays) -> bool:
         nb = np.where(periodic, np.mod(nb, n_cells), nb)
         if np.any((nb < 0) | (nb >= n_cells)):
             return False
-        if not np.isin(nb @ strides, occupied, assume_unique=False).all():
+        if not np.isin(nb @ strides, occupied).all():
             return False
     return True
 

@@ -138,7 +138,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                                  ic.ppe.check_every, self.wide,
                                  flow_rows=(P.kind, FLUID) if self.extrapolated_walls else None)
         # isph.frame eulerian: the particles stay on their lattice, nothing to shift
-        self.shifting = (ParticleShifting(self, cfg.shifting_coefficient) if self.features.shifting and not self.eulerian
+        self.shifting = (ParticleShifting(self) if self.features.shifting and not self.eulerian
                          else None)
         self.iterations: list[int] = []
         self.residuals: list[float] = []

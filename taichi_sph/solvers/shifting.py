@@ -67,10 +67,10 @@ MAX_FACES = 3  # container faces a particle's support may meet (a 3D corner)
 class ParticleShifting:
     """The shift of every fluid particle (see the module docstring): `apply(dt, max_speed)`."""
 
-    def __init__(self, solver, coefficient: float) -> None:
-        cfg = solver.cfg
+    def __init__(self, solver) -> None:
+        cfg = solver.cfg  # the solver's config, its 'auto' shift decided (scene/confinement.py)
         self.solver = solver
-        self.coefficient = coefficient
+        self.coefficient = cfg.shifting_coefficient
         self.global_speed = cfg.shifting_model == "sun"
         self.max_shift = cfg.shifting.max_shift * cfg.particles.dx
         self.lattice_sum = lattice_kernel_sum(cfg, solver.kernel.w_np)

@@ -85,7 +85,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         # q = p / (S / S_lattice) of every particle (walls: p), set before the force pass
         self.q_pressure = P.add_scalar() if f.surface_scaled_pressure else None
         self.w_dx = float(self.kernel.w_np(np.array([self.dx]))[0])
-        self.shifting = ParticleShifting(self, cfg.shifting_coefficient) if f.shifting else None
+        self.shifting = ParticleShifting(self) if f.shifting else None
         self.schedule = LoopSchedule()
         self.init_device_loop(cfg, self.shifting.max_shift if self.shifting is not None else 0.0)
         self.init_kinematic_walls(arrays)
