@@ -85,10 +85,21 @@ def test_a_confined_wcsph_flow_keeps_its_wake_in_order(tmp_path):
     assert shifting["enabled"] is True and shifting["coefficient"] == 20.0
 
 
-
 def test_a_solver_built_without_the_run_takes_the_confined_shift():
     """bench, view and the real-time measure build a solver from the scene's own config: its shift must be the one a
     run gets (A 20), not the shared default A 2 of the unresolved config."""
     cfg = config_from_dict(channel(0.002))
     solver = make_solver(cfg, build_particles(cfg))
     assert solver.cfg.shifting_enabled and solver.shifting.coefficient == CONFINED_SHIFT_COEFFICIENT
+
+
+def test_the_confined_shift_skips_the_free_surface_pass():
+    """No free surface to flag in a fluid that fills its container: WCSPH's shift leaves out the kernel-sum pass
+    that finds one (a neighbour loop a step: ~10% of the channel's step), ISPH and a free-surface scene keep it."""
+    def shifting_of(d: dict):
+        cfg = config_from_dict(d)
+        return make_solver(cfg, build_particles(cfg)).shifting
+
+    assert shifting_of(channel(0.002)).no_surface
+    assert not shifting_of(channel(0.002, fluid_top=0.03, shifting={"enabled": True})).no_surface
+    assert not shifting_of(channel(0.002, solver="isph")).no_surface

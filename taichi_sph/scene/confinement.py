@@ -53,18 +53,20 @@ def fills_container(cfg: Config, arrays: ParticleArrays) -> bool:
     return True
 
 
-def confined_shifting(cfg: Config, arrays: ParticleArrays) -> Config:
+def confined_shifting(cfg: Config, arrays: ParticleArrays, fills: bool | None = None) -> Config:
     """`shifting.enabled` left unset (None) decided for this scene: on for ISPH; for WCSPH on where the fluid fills
     its container (`fills_container`) and the scene does not take Adami's transport velocity (which regularises the
     arrangement itself and refuses a shift), off otherwise. The shift WCSPH turns on itself takes A =
     CONFINED_SHIFT_COEFFICIENT where the scene sets none. The returned config carries the decisions, so the run
-    folder's config.yaml repeats them."""
+    folder's config.yaml repeats them. `fills`: fills_container's answer where the caller has it."""
     sh = cfg.shifting
     if sh.enabled is not None:
         return cfg
     if cfg.solver == "isph":
         return replace(cfg, shifting=replace(sh, enabled=True))
-    if cfg.wcsph.transport_velocity or not fills_container(cfg, arrays):
+    if fills is None:
+        fills = fills_container(cfg, arrays)
+    if cfg.wcsph.transport_velocity or not fills:
         return replace(cfg, shifting=replace(sh, enabled=False))
     coefficient = CONFINED_SHIFT_COEFFICIENT if sh.coefficient is None else sh.coefficient
     return replace(cfg, shifting=replace(sh, enabled=True, coefficient=coefficient))

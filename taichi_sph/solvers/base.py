@@ -14,7 +14,7 @@ from taichi_sph.physics.eos import tait_density, tait_pressure
 from taichi_sph.physics.momentum import morris_monaghan_alpha, renormalised_velocity_gradient
 from taichi_sph.physics.walls import adami_wall_pressure, adami_wall_velocity
 from taichi_sph.scene.bodies import FLUID, WALL, ParticleArrays, tait_b
-from taichi_sph.scene.confinement import confined_shifting
+from taichi_sph.scene.confinement import confined_shifting, fills_container
 from taichi_sph.scene.lattice import lattice_gradient_sum, lattice_kernel_sum, max_neighbors_for
 from taichi_sph.solvers.clock import DeviceClock
 from taichi_sph.solvers.state import CheckpointState
@@ -37,7 +37,9 @@ class SolverBase(KinematicWalls, CheckpointState):
     wall_wall_pairs = True  # solvers that never couple two wall particles set False: shorter wall lists
 
     def __init__(self, cfg: Config, arrays: ParticleArrays) -> None:
-        cfg = self.cfg = confined_shifting(cfg, arrays)  # shifting's default for this scene (scene/confinement.py)
+        # a fluid that fills its container keeps no free surface (scene/confinement.py): shifting's default for it
+        self.fills_container = fills_container(cfg, arrays)
+        cfg = self.cfg = confined_shifting(cfg, arrays, self.fills_container)
         # the clock's and the PPE stopping test's float: f64 unless the device has none (or float64: false)
         self.wide = wide_float(cfg.float64, cfg.precision)
         self.features = Features.from_config(cfg, arrays.n_wall, wide="f64" if self.wide == ti.f64 else "f32")

@@ -89,8 +89,10 @@ class ParticleShifting:
         self.taylor = self.correct or self.correct_rho  # the renormalised sums are needed
         self.dv = solver.particles.add_vector() if self.correct else None
         self.drho = solver.particles.add_scalar() if self.correct_rho or self.follow_rho else None
-        # surface flags of this step (the projection band is found from the neighbours' flags)
+        # surface flags of this step (the projection band is found from the neighbours' flags); a WCSPH fluid that
+        # fills its container has none to flag (scene/confinement.py), and skips the kernel-sum pass that finds them
         self.surface = solver.particles.add_scalar(dtype=ti.i32)
+        self.no_surface = cfg.solver == "wcsph" and getattr(solver, "fills_container", False)
         # sun: 1 in the free-surface region (a surface particle within the support, itself included), for
         # WCSPH's tensile instability control; persistent: the neighbour rebuild between the shift and the force
         # pass that reads it may reorder the particles
@@ -137,9 +139,10 @@ class ParticleShifting:
         for a in range(S.n):  # a constant end, the step's flag inside (SolverBase.live)
             if S.live():
                 self.surface[a] = 0
-                if P.kind[a] == FLUID:
-                    if self.kernel_sum(a) < self.threshold * self.lattice_sum:
-                        self.surface[a] = 1
+                if ti.static(not self.no_surface):
+                    if P.kind[a] == FLUID:
+                        if self.kernel_sum(a) < self.threshold * self.lattice_sum:
+                            self.surface[a] = 1
 
     @ti.func
     def compute_pass(self, dt, max_speed, serial: ti.template()):
