@@ -1,12 +1,16 @@
 """Building a scene's particles (scene/bodies.py): fluid is kept out of the walls whatever dx is, and a periodic
-length that dx does not divide is warned about (run/checks.py)."""
+length or box that dx does not divide is warned about (run/checks.py)."""
+
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from taichi_sph.config.loader import config_from_dict
+from taichi_sph.config.loader import config_from_dict, load_config
 from taichi_sph.run.checks import a_priori_checks
-from taichi_sph.scene.bodies import FLUID, build_particles
+from taichi_sph.scene.bodies import FLUID, WALL, build_particles, wall_face_planes
+
+CONFIGS = Path(__file__).resolve().parents[1] / "configs"
 
 
 def channel(dx: float, fluid_top: float = 0.04, **extra) -> dict:
@@ -49,3 +53,24 @@ def test_a_periodic_length_dx_does_not_divide_is_warned_about_with_the_dx_that_d
     assert "142.86 dx, not a whole number" in checks["periodic_lattice"]
     assert "0.86 dx from its image" in checks["periodic_lattice"] and "particles.dx 0.000699301" in checks["periodic_lattice"]
     assert "periodic_lattice" not in {c.code for c in a_priori_checks(config_from_dict(channel(0.001)))}
+
+
+def test_a_box_its_spacing_does_not_divide_is_warned_about_and_its_faces_are_where_its_particles_end():
+    """The 1 cm obstacle at dx 0.7 mm gets 14 rows: its particles fill 9.8 mm, and the kinematic wall condition's
+    faces (wall_face_planes) are where they end, not the declared 0.025 (which the check names)."""
+    cfg = config_from_dict(channel(0.0007))
+    messages = [c.message for c in a_priori_checks(cfg) if c.code == "body_lattice"]
+    assert len(messages) == 2 and all("bodies[3] (wall_block) spans 14.286 particle spacings" in m for m in messages)
+    assert "end at 0.0248 m, 0.29 dx short of its face hi[1] = 0.025" in messages[1]
+    assert "set hi[1] to 0.0248 to say so, or particles.dx to 0.000714286" in messages[1]
+    a = build_particles(cfg)
+    normal, offset, _ = wall_face_planes(cfg, a.x, a.kind)
+    top = (a.kind == WALL) & (normal[:, 1] == 1.0) & (a.x[:, 1] > 0.015) & (a.x[:, 1] < 0.03)
+    assert top.any() and np.allclose(offset[top], 14 * 0.0007 + 0.015)
+    assert "body_lattice" not in {c.code for c in a_priori_checks(config_from_dict(channel(0.001)))}
+
+
+def test_no_bundled_scene_has_a_box_off_its_lattice():
+    """Every bundled scene's boxes end where their particles do (the dam break's tank is 429 dx = 5.3625 m)."""
+    for path in sorted(CONFIGS.glob("*.yaml")):
+        assert not [c.message for c in a_priori_checks(load_config(path)) if c.code == "body_lattice"], path.name

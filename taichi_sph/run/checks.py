@@ -3,8 +3,8 @@
 Each check judges one thing that can be known before the first step: `mach` (U / c0), `cfl_number` (the adaptive
 Courant number), `cfl_dt` / `force_dt` / `viscous_dt` (a fixed dt against its limits), `support` (neighbours per
 kernel support on the lattice), `neighbour_capacity`, `wall_layers` (wall thickness against the support),
-`unbounded` (gravity with nothing to stop the fluid) and `periodic_lattice` (a periodic length that dx does not
-divide). A check is `severe` when the set-up cannot give a meaningful result: `taichi-sph run` refuses it (exit 2,
+`unbounded` (gravity with nothing to stop the fluid), `periodic_lattice` (a periodic length that dx does not
+divide) and `body_lattice` (a box whose particles end off its declared face). A check is `severe` when the set-up cannot give a meaningful result: `taichi-sph run` refuses it (exit 2,
 one line; `--force` runs anyway) and `taichi-sph stability` reports it as the reason it refused the case; the rest
 are warnings. The thresholds and their reasons: docs/notes/checks.md.
 """
@@ -32,12 +32,16 @@ MACH_SEVERE = 1.0
 # spacing (0.14 dx for a channel 0.1 m long at dx 0.7 mm put voids there at every output); the validation's Taylor-Green
 # step dx 0.006667 on L 1 (149.9925 dx, 0.75% of dx) is rounding
 PERIODIC_SEAM_WARN = 0.05
+# a box whose extent is not a whole number of its particle spacing: its particles, laid from its lower corner, end
+# this far (in dx) short of or beyond its declared upper face. Smaller offsets are within the lattice's own half-row
+# (a boundary particle stands for dx around it); a 1 cm obstacle at dx 3 mm is 0.9 cm of particles (0.33 dx short)
+FACE_OFFSET_WARN = 0.25
 
 
 @dataclass(frozen=True)
 class CheckResult:
     code: str          # short id: mach, cfl_number, cfl_dt, force_dt, viscous_dt, support,
-                       # neighbour_capacity, wall_layers, unbounded, periodic_lattice
+                       # neighbour_capacity, wall_layers, unbounded, periodic_lattice, body_lattice
     message: str
     severe: bool = False   # the run is very likely to blow up or give garbage
 
@@ -205,10 +209,42 @@ def _periodic_lattice(cfg: Config) -> list[CheckResult]:
     return out
 
 
+def _body_lattice(cfg: Config) -> list[CheckResult]:
+    """A box's upper face that its particles do not reach: a box of length L along an axis gets round(L / s)
+    particles at spacing s (dx; a wall's dx / walls.refinement) laid from its lower face (scene/bodies.py), so they
+    fill [lo, lo + round(L / s) s] and the upper face sits (round(L / s) - L / s) s off the declared one. Checked:
+    a square-packed fluid_block's faces, a wall_box's inner faces (not an open top) and a wall_block's."""
+    out: list[CheckResult] = []
+    dx = cfg.particles.dx
+    for i, b in enumerate(cfg.bodies):
+        if b.type == "fluid_block" and cfg.particles.packing == "square":
+            s, r = dx, 1
+        elif b.type in ("wall_box", "wall_block"):
+            s, r = cfg.wall_dx, cfg.wall_refinement
+        else:
+            continue
+        for a in range(cfg.dim):
+            if b.type == "wall_box" and b.open_top and a == cfg.dim - 1:
+                continue
+            length = b.hi[a] - b.lo[a]
+            n = length / s
+            whole = max(1, round(n))
+            off = (whole - n) * s
+            if abs(off) > FACE_OFFSET_WARN * dx:
+                end = b.lo[a] + whole * s
+                where = "beyond" if off > 0 else "short of"
+                out.append(CheckResult(
+                    "body_lattice", f"bodies[{i}] ({b.type}) spans {n:.5g} particle spacings on axis {a} and gets {whole}: its particles "
+                    f"end at {end:.6g} m, {abs(off) / dx:.2f} dx {where} its face hi[{a}] = {b.hi[a]:g} (they are laid "
+                    f"from lo at spacing {s:g}); set hi[{a}] to {end:.6g} to say so, or particles.dx to "
+                    f"{r * length / whole:.6g} ({whole} spacings)"))
+    return out
+
+
 def a_priori_checks(cfg: Config) -> list[CheckResult]:
     """Everything that can be judged before the first step."""
     return (_mach(cfg) + _time_step(cfg) + _support(cfg) + _neighbour_capacity(cfg) + _walls(cfg)
-            + _unbounded(cfg) + _periodic_lattice(cfg))
+            + _unbounded(cfg) + _periodic_lattice(cfg) + _body_lattice(cfg))
 
 
 def severe_checks(cfg: Config) -> list[CheckResult]:

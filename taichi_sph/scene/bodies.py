@@ -13,7 +13,7 @@ import numpy as np
 from taichi_sph.config.expressions import evaluate_expression
 from taichi_sph.config.schema import Body, Config
 from taichi_sph.errors import ConfigError
-from taichi_sph.scene.lattice import hexagonal_box, hexagonal_sphere, lattice_box, lattice_sphere
+from taichi_sph.scene.lattice import hexagonal_box, hexagonal_sphere, lattice_box, lattice_end, lattice_sphere
 
 FLUID = 0
 WALL = 1
@@ -186,25 +186,36 @@ def _clear_of_walls(cfg: Config, x: np.ndarray, kind: np.ndarray, clearance: flo
     """The particles to keep: not a fluid particle inside a wall_block's box or closer than `clearance` to it, nor
     one inside a wall_box's layers. _overlap_free finds the fluid particles on wall particles only where the two
     lattices align: a wall_block at 0.045-0.055 m in a fluid at dx 0.7 mm left 225 fluid particles inside it, 0.52
-    dx from wall particles, and ISPH went non-finite at step 20. (A wall_block's lattice starts at each of its lower
-    faces, as a fluid block's does; a wall_box's layers are laid from its outer corner, so its upper faces' particles
-    sit off the face where dx does not divide the box, and a clearance there would open a gap.)"""
+    dx from wall particles, and ISPH went non-finite at step 20. A wall body's upper faces are where its particles
+    end (lattice_upper_faces), up to half a spacing off the declared ones where the spacing does not divide the box.
+    (A wall_box's layers are laid from its outer corner: no clearance at its faces, which would open a gap.)"""
     keep = np.ones(len(kind), dtype=bool)
     fluid = kind == FLUID
     for body in cfg.bodies:
         if body.type == "wall_block":
             lo = np.asarray(body.lo, float) - clearance
-            hi = np.asarray(body.hi, float) + clearance
+            hi = lattice_upper_faces(cfg, body) + clearance
             keep &= ~(fluid & np.all((x > lo) & (x < hi), axis=1))
         elif body.type == "wall_box":
             outer_lo, outer_hi = (np.asarray(c, float) for c in cfg.wall_box_extent(body))
-            inner_lo, inner_hi = np.asarray(body.lo, float), np.asarray(body.hi, float)
+            inner_lo, inner_hi = np.asarray(body.lo, float), lattice_upper_faces(cfg, body)
             if body.open_top:  # no wall above: the fluid may fill the box to its top and beyond
                 inner_hi[-1] = np.inf
             in_shell = np.all((x > outer_lo) & (x < outer_hi), axis=1)
             in_box = np.all((x >= inner_lo) & (x <= inner_hi), axis=1)
             keep &= ~(fluid & in_shell & ~in_box)
     return keep
+
+
+def lattice_upper_faces(cfg: Config, body: Body) -> np.ndarray:
+    """A wall body's upper faces where its particles put them: laid from lo at the wall spacing, they end at
+    lattice_end(lo, hi) (hi where the spacing divides the box; else up to half a spacing off it, which the
+    body_lattice check reports). The open top of a wall_box keeps hi (its side walls stop there)."""
+    s = cfg.wall_dx
+    hi = np.array([lattice_end(lo, hi, s) for lo, hi in zip(body.lo, body.hi)], dtype=float)
+    if body.type == "wall_box" and body.open_top:
+        hi[-1] = body.hi[-1]
+    return hi
 
 
 def wall_crossings(x: np.ndarray, kind: np.ndarray, cfg: Config) -> int:
@@ -215,9 +226,10 @@ def wall_crossings(x: np.ndarray, kind: np.ndarray, cfg: Config) -> int:
         if body.type != "wall_box":
             continue
         outside = np.zeros(len(fluid), dtype=bool)
+        hi = lattice_upper_faces(cfg, body)
         for a in range(cfg.dim):
             below = fluid[:, a] < body.lo[a]
-            above = fluid[:, a] > body.hi[a]
+            above = fluid[:, a] > hi[a]
             if body.open_top and a == cfg.dim - 1:
                 above[:] = False
             outside |= below | above
@@ -245,7 +257,7 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
     for body in cfg.bodies:
         if body.type not in ("wall_box", "wall_block") or not unassigned.any():
             continue
-        lo, hi = np.asarray(body.lo, float), np.asarray(body.hi, float)
+        lo, hi = np.asarray(body.lo, float), lattice_upper_faces(cfg, body)
         y = x[unassigned]
         if body.type == "wall_box":
             thick = cfg.wall_layers(body) * cfg.particles.dx + 1e-9

@@ -16,6 +16,18 @@ def axis_points(lo: float, hi: float, dx: float) -> np.ndarray:
     return lo + (np.arange(max(n, 0)) + 0.5) * dx
 
 
+# a box this close to a whole number of spacings (in spacings) ends at its declared face: the declared digits' rounding
+# (Buchner's tank, 5.366 H at dx H / 40.07: 214.998 spacings), not an offset of the lattice
+WHOLE_SPACINGS = 0.01
+
+
+def lattice_end(lo: float, hi: float, dx: float) -> float:
+    """Where the lattice laid from lo at spacing dx toward hi ends: lo + round((hi - lo) / dx) dx, the face its
+    particles fill to (axis_points' count); hi itself where dx divides hi - lo (to WHOLE_SPACINGS)."""
+    n = (hi - lo) / dx
+    return hi if abs(n - round(n)) <= WHOLE_SPACINGS else lo + round(n) * dx
+
+
 def lattice_box(lo: tuple[float, ...], hi: tuple[float, ...], dx: float) -> np.ndarray:
     """Points of a square/cubic lattice with spacing dx filling the box [lo, hi]."""
     axes = [axis_points(lo[a], hi[a], dx) for a in range(len(lo))]
