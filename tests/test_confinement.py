@@ -8,6 +8,7 @@ import yaml
 from test_bodies import channel
 
 from taichi_sph.config.loader import config_from_dict, load_config
+from taichi_sph.run import memory
 from taichi_sph.run.simulation import Simulation
 from taichi_sph.scene.bodies import build_particles
 from taichi_sph.scene.confinement import CONFINED_SHIFT_COEFFICIENT, confined_shifting, fills_container
@@ -103,3 +104,13 @@ def test_the_confined_shift_skips_the_free_surface_pass():
     assert shifting_of(channel(0.002)).no_surface
     assert not shifting_of(channel(0.002, fluid_top=0.03, shifting={"enabled": True})).no_surface
     assert not shifting_of(channel(0.002, solver="isph")).no_surface
+
+
+def test_the_memory_estimate_counts_the_shift_wcsph_may_turn_on():
+    """The pre-flight estimate builds no particle, so it cannot tell whether the fluid fills its container: a WCSPH
+    scene that leaves the shift unset is counted with it (the upper bound), one that sets it off without."""
+    def device_bytes(**extra) -> float:
+        return memory.estimate(config_from_dict(channel(0.001, **extra)), device=False).device_bytes
+
+    unset, on, off = device_bytes(), device_bytes(shifting={"enabled": True}), device_bytes(shifting={"enabled": False})
+    assert unset == on > off

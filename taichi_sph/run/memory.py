@@ -151,10 +151,14 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
         floats += d
     if f.ghost_velocity:
         floats += d
-    if f.shifting:
-        floats += d
-        ints += cfg.shifting_model == "sun"  # its surface flags
-        ints += f.tensile_instability_control  # the free-surface region kept for it
+    # WCSPH's shift left unset is on where the fluid fills its container (scene/confinement.py), which only the built
+    # particles tell: counted as on, an upper bound of d floats and an int a particle
+    confined_shift = cfg.solver == "wcsph" and cfg.shifting.enabled is None and not cfg.wcsph.transport_velocity
+    if f.shifting or confined_shift:
+        floats += d + d * f.shifting_correction          # the shift (+ the Taylor correction's dv)
+        floats += f.shifting_density in ("taylor", "continuity")  # the density's correction
+        ints += 1                                         # this step's surface flags
+        ints += f.tensile_instability_control             # the free-surface region kept for it
     if cfg.solver == "wcsph":
         floats += (f.density == "continuity") + (f.density_diffusion != "none") + f.dim * (f.density_diffusion == "antuono")
         if f.walls and cfg.wall_clearance is not None:
