@@ -53,7 +53,7 @@ def test_a_dam_break_column_holds_the_potential_of_its_height_above_the_settled_
     x, v, rho, m = fluid(cfg)
     rest = rest_state(cfg, m)
     # column a x 2a, rest layer 2a^2 / L deep: E = M g (a - a^2 / L), to the lattice's dx
-    g, a, length, mass = 9.81, 1.0, 5.366, m.sum()
+    g, a, length, mass = 9.81, 1.0, 5.3625, m.sum()  # the tank's 5.366 a on the lattice (429 dx)
     expected = mass * g * (a - a * a / length)
     assert potential_energy(cfg, x, m) - rest.potential == pytest.approx(expected, rel=0.02)
 
@@ -81,9 +81,10 @@ def test_a_tilted_gravity_has_a_rest_state_that_is_a_lower_bound(lean):
     assert rest.known and energy_input(cfg) is None
     assert rest.potential < potential_energy(cfg, x, m)
     # the settled upright layer, slid against the downhill wall: an arrangement, so its potential is above the bound
-    settled_x = -lean * m.sum() * (5.366 / 2.0)  # the layer's centroid at mid-tank
+    width = 5.3625  # the tank's inner width: Martin & Moyce's 5.366 a on the lattice (429 dx)
+    settled_x = -lean * m.sum() * (width / 2.0)  # the layer's centroid at mid-tank
     assert rest.potential <= rest_upright.potential + settled_x
-    assert rest.potential == pytest.approx(rest_upright.potential - lean * m.sum() * 5.366, rel=1e-9, abs=1e-6)
+    assert rest.potential == pytest.approx(rest_upright.potential - lean * m.sum() * width, rel=1e-9, abs=1e-6)
 
 
 def test_a_periodic_channel_rests_on_its_wall_block_bed():
