@@ -245,7 +245,8 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
 
     A body only claims the particles of its own shape: an open-top box's shell ends at its top (a lid
     laid across it is not part of it: claiming the lid's particles gave them the box's side faces, see
-    physics/walls.py), and no face is perpendicular to a periodic axis (a block that spans one has no
+    physics/walls.py), a block standing inside a box is not part of the box's shell (claimed by the box, an
+    obstacle on its floor had the floor's face, and ISPH's fluid came within 0.09 dx of the obstacle's side), and no face is perpendicular to a periodic axis (a block that spans one has no
     end there: particles wrapping through the seam met a phantom face). Returns (normal, offset, container):
     container says whether the particle's body is a wall_box (whose faces the shift may mirror the fluid in)."""
     dim = cfg.dim
@@ -264,7 +265,9 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
             top = hi + thick
             if body.open_top:
                 top[-1] = hi[-1] + 1e-9  # wall_box_points stop at hi along the open axis
-            inside_shell = np.all((y > lo - thick) & (y < top), axis=1)
+            # its layers only: not a block standing inside the box (an obstacle on the floor has faces of its own)
+            inside_shell = (np.all((y > lo - thick) & (y < top), axis=1)
+                            & ~np.all((y > lo + 1e-9) & (y < hi - 1e-9), axis=1))
             # how far outside each face: columns (lo_0, hi_0, lo_1, hi_1, ...), normals +e_a / -e_a
             depth = np.stack([c for a in range(dim) for c in (lo[a] - y[:, a], y[:, a] - hi[a])], axis=1)
             if body.open_top:
