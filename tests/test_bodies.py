@@ -95,3 +95,18 @@ def test_a_block_standing_in_a_tank_has_its_own_faces():
     assert np.allclose(normal[top], [0.0, 1.0]) and np.allclose(offset[top], 0.1)
     floor = (a.kind == WALL) & (a.x[:, 1] < 0.0) & (a.x[:, 0] > 0.1) & (a.x[:, 0] < 0.9)
     assert np.allclose(normal[floor], [0.0, 1.0]) and np.allclose(offset[floor], 0.0) and container[floor].all()
+
+
+def test_a_step_laid_into_a_tanks_wall_layers_does_not_double_its_particles():
+    """A step on the floor drawn from inside the left wall (lo x = -0.1): its particles in the wall's layers sat on
+    the wall's own (16 doubled at dx 0.025, twice the wall's volume there); the box's win."""
+    step = {"type": "wall_block", "lo": [-0.1, 0.0], "hi": [0.3, 0.1]}
+    data = {"dim": 2, "gravity": [0.0, -9.81], "domain": {"lo": [-0.2, -0.2], "hi": [1.2, 2.0]},
+            "particles": {"dx": 0.025},
+            "bodies": [{"type": "fluid_block", "lo": [0.0, 0.1], "hi": [0.3, 0.5]},
+                       {"type": "wall_box", "lo": [0.0, 0.0], "hi": [1.0, 0.6], "open_top": True}]}
+    box = build_particles(config_from_dict(data))
+    both = build_particles(config_from_dict({**data, "bodies": data["bodies"] + [step]}))
+    walls = both.x[both.kind == WALL]
+    assert len(np.unique(np.round(walls / 1e-6), axis=0)) == len(walls)
+    assert len(walls) == (box.kind == WALL).sum() + 16 * 4 - 16  # the step's 16 x 4 less the 16 in the wall's layers

@@ -170,7 +170,9 @@ def fluid_velocities(cfg: Config, arrays: ParticleArrays, x: np.ndarray) -> np.n
 
 
 def _overlap_free(x: np.ndarray, kind: np.ndarray, dx: float) -> np.ndarray:
-    """The particles to keep: not a fluid particle that sits on a wall particle (same dx/2 cell): walls win."""
+    """The particles to keep: not a fluid particle that sits on a wall particle (same dx/2 cell): walls win; nor a
+    wall particle on an earlier body's wall particle (a step or baffle laid into a box's wall layers doubled the
+    wall's particles there: twice its volume in every kernel sum): the first body's wins."""
     walls = kind == WALL
     if not walls.any():
         return np.ones(len(kind), dtype=bool)
@@ -179,6 +181,11 @@ def _overlap_free(x: np.ndarray, kind: np.ndarray, dx: float) -> np.ndarray:
     span = cell.max(axis=0) + 1
     code = np.ravel_multi_index(tuple(cell.T), tuple(span))
     drop = (kind == FLUID) & np.isin(code, code[walls])
+    wall_rows = np.flatnonzero(walls)  # in body order (build_particles' stable sort)
+    _, first = np.unique(code[wall_rows], return_index=True)
+    repeated = np.ones(len(wall_rows), dtype=bool)
+    repeated[first] = False
+    drop[wall_rows[repeated]] = True
     return ~drop
 
 
