@@ -110,3 +110,18 @@ def test_a_step_laid_into_a_tanks_wall_layers_does_not_double_its_particles():
     walls = both.x[both.kind == WALL]
     assert len(np.unique(np.round(walls / 1e-6), axis=0)) == len(walls)
     assert len(walls) == (box.kind == WALL).sum() + 16 * 4 - 16  # the step's 16 x 4 less the 16 in the wall's layers
+
+
+def test_a_wall_block_thinner_than_the_support_is_warned_about():
+    """A 2 cm divider at dx 0.01 (WCSPH's support 4 spacings): fluid on its two sides feels each other through it."""
+    data = {"dim": 2, "gravity": [0.0, -9.81], "domain": {"lo": [-0.1, -0.1], "hi": [0.5, 0.9]},
+            "particles": {"dx": 0.01},
+            "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.4, 0.2]},
+                       {"type": "wall_box", "lo": [0.0, 0.0], "hi": [0.4, 0.6], "open_top": True},
+                       {"type": "wall_block", "lo": [0.19, 0.1], "hi": [0.21, 0.7]}]}
+    messages = [c.message for c in a_priori_checks(config_from_dict(data)) if c.code == "wall_layers"]
+    assert messages == ["bodies[2] (wall_block) is 2 particle spacings thick along axis 0, thinner than the kernel "
+                        "support (0.04 m, 4 spacings): fluid beside it misses wall neighbours, and fluid on its two "
+                        "sides feels each other through it; make it 4 spacings (0.04 m) thick"]
+    data["bodies"][2] = {"type": "wall_block", "lo": [0.18, 0.1], "hi": [0.22, 0.7]}
+    assert not [c for c in a_priori_checks(config_from_dict(data)) if c.code == "wall_layers"]

@@ -186,6 +186,15 @@ def _walls(cfg: Config) -> list[CheckResult]:
                                                   f"({support:.3g} m) spans {need}: particles near the wall lack "
                                                   f"neighbours" + (" and can pass through it" if thin else "")
                                                   + f"; set layers: {need}", severe=thin))
+        elif b.type == "wall_block":
+            for a in range(cfg.dim):
+                rows = round((b.hi[a] - b.lo[a]) / cfg.wall_dx) / cfg.wall_refinement  # in fluid spacings
+                if not cfg.periodic[a] and rows < need:
+                    out.append(CheckResult(
+                        "wall_layers", f"bodies[{i}] (wall_block) is {rows:g} particle spacings thick along axis {a}, "
+                        f"thinner than the kernel support ({support:.3g} m, {need} spacings): fluid beside it misses "
+                        f"wall neighbours, and fluid on its two sides feels each other through it; make it {need} "
+                        f"spacings ({need * dx:.4g} m) thick"))
     return out
 
 
