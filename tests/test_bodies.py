@@ -125,3 +125,18 @@ def test_a_wall_block_thinner_than_the_support_is_warned_about():
                         "sides feels each other through it; make it 4 spacings (0.04 m) thick"]
     data["bodies"][2] = {"type": "wall_block", "lo": [0.18, 0.1], "hi": [0.22, 0.7]}
     assert not [c for c in a_priori_checks(config_from_dict(data)) if c.code == "wall_layers"]
+
+
+def test_a_step_against_a_tanks_wall_does_not_face_into_that_wall():
+    """A step on the floor against the left wall: its corner particle under the fluid is as near its left face (laid
+    on the tank's wall, which no fluid reaches) as its top; it faces up, so the fluid above is not held against the
+    tank's wall by a face behind it."""
+    cfg = config_from_dict({
+        "dim": 2, "gravity": [0.0, -9.81], "domain": {"lo": [-0.2, -0.2], "hi": [1.2, 2.0]}, "particles": {"dx": 0.025},
+        "bodies": [{"type": "fluid_block", "lo": [0.0, 0.1], "hi": [0.3, 0.5]},
+                   {"type": "wall_box", "lo": [0.0, 0.0], "hi": [1.0, 0.6], "open_top": True},
+                   {"type": "wall_block", "lo": [0.0, 0.0], "hi": [0.3, 0.1]}]})
+    a = build_particles(cfg)
+    normal, offset, _ = wall_face_planes(cfg, a.x, a.kind)
+    corner = (a.kind == WALL) & np.all(np.isclose(a.x, [0.0125, 0.0875]), axis=1)
+    assert corner.sum() == 1 and np.allclose(normal[corner], [0.0, 1.0]) and np.allclose(offset[corner], 0.1)

@@ -214,6 +214,22 @@ def _clear_of_walls(cfg: Config, x: np.ndarray, kind: np.ndarray, clearance: flo
     return keep
 
 
+def _buried_faces(cfg: Config, block: Body, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Which of a wall_block's faces (columns lo_0, hi_0, lo_1, ...) lie on or behind a wall_box's inner face: no
+    fluid reaches them, and a particle at the block's edge given one (a tie with the face the fluid sees) held the
+    fluid beside it by a face behind it. Never all of them."""
+    buried = np.zeros(2 * cfg.dim, dtype=bool)
+    for box in cfg.bodies:
+        if box.type != "wall_box":
+            continue
+        box_lo, box_hi = np.asarray(box.lo, float), lattice_upper_faces(cfg, box)
+        for a in range(cfg.dim):
+            buried[2 * a] |= lo[a] <= box_lo[a] + 1e-9
+            open_above = box.open_top and a == cfg.dim - 1
+            buried[2 * a + 1] |= hi[a] >= box_hi[a] - 1e-9 and not open_above
+    return buried if not buried.all() else np.zeros_like(buried)
+
+
 def lattice_upper_faces(cfg: Config, body: Body) -> np.ndarray:
     """A wall body's upper faces where its particles put them: laid from lo at the wall spacing, they end at
     lattice_end(lo, hi) (hi where the spacing divides the box; else up to half a spacing off it, which the
@@ -281,8 +297,10 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
                 depth[:, 2 * dim - 1] = -np.inf
         else:
             inside_shell = np.all((y > lo - 1e-9) & (y < hi + 1e-9), axis=1)
-            # a block's particle is behind the face it is nearest to (largest negative depth)
+            # a block's particle is behind the face it is nearest to (largest negative depth), of the faces the fluid
+            # can reach: not one laid against a box's wall (a step's side on the tank's wall, a baffle's end)
             depth = -np.stack([c for a in range(dim) for c in (y[:, a] - lo[a], hi[a] - y[:, a])], axis=1)
+            depth[:, _buried_faces(cfg, body, lo, hi)] = -np.inf
         depth[:, no_face] = -np.inf
         face = np.argmax(depth, axis=1)
         axis, upper = face // 2, face % 2 == 1
