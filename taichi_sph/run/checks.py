@@ -4,9 +4,10 @@ Each check judges one thing that can be known before the first step: `mach` (U /
 Courant number), `cfl_dt` / `force_dt` / `viscous_dt` (a fixed dt against its limits), `support` (neighbours per
 kernel support on the lattice), `neighbour_capacity`, `wall_layers` (wall thickness against the support),
 `unbounded` (gravity with nothing to stop the fluid), `periodic_lattice` (a periodic length that dx does not
-divide) and `body_lattice` (a box whose particles end off its declared face). A check is `severe` when the set-up cannot give a meaningful result: `taichi-sph run` refuses it (exit 2,
-one line; `--force` runs anyway) and `taichi-sph stability` reports it as the reason it refused the case; the rest
-are warnings. The thresholds and their reasons: docs/notes/checks.md.
+divide) and `body_lattice` (a box whose particles end off its declared face). A check is `severe` when the set-up
+cannot give a meaningful result: `taichi-sph run` refuses it (exit 2, one line; `--force` runs anyway) and
+`taichi-sph stability` reports it as the reason it refused the case; the rest are warnings. The thresholds and their
+reasons: docs/notes/checks.md.
 """
 
 from __future__ import annotations
@@ -243,8 +244,8 @@ def _body_lattice(cfg: Config) -> list[CheckResult]:
                 end = b.lo[a] + whole * s
                 where = "beyond" if off > 0 else "short of"
                 out.append(CheckResult(
-                    "body_lattice", f"bodies[{i}] ({b.type}) spans {n:.5g} particle spacings on axis {a} and gets {whole}: its particles "
-                    f"end at {end:.6g} m, {abs(off) / dx:.2f} dx {where} its face hi[{a}] = {b.hi[a]:g} (they are laid "
+                    "body_lattice", f"bodies[{i}] ({b.type}) spans {n:.5g} particle spacings on axis {a} and gets "
+                    f"{whole}: its particles end at {end:.6g} m, {abs(off) / dx:.2f} dx {where} its face hi[{a}] = {b.hi[a]:g} (they are laid "
                     f"from lo at spacing {s:g}); set hi[{a}] to {end:.6g} to say so, or particles.dx to "
                     f"{r * length / whole:.6g} ({whole} spacings)"))
     return out

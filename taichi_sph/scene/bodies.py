@@ -269,7 +269,8 @@ def wall_face_planes(cfg: Config, x: np.ndarray, kind: np.ndarray) -> tuple[np.n
     A body only claims the particles of its own shape: an open-top box's shell ends at its top (a lid
     laid across it is not part of it: claiming the lid's particles gave them the box's side faces, see
     physics/walls.py), a block standing inside a box is not part of the box's shell (claimed by the box, an
-    obstacle on its floor had the floor's face, and ISPH's fluid came within 0.09 dx of the obstacle's side), and no face is perpendicular to a periodic axis (a block that spans one has no
+    obstacle on its floor had the floor's face, and ISPH's fluid came within 0.014 dx of the obstacle's side:
+    docs/notes/walls.md), and no face is perpendicular to a periodic axis (a block that spans one has no
     end there: particles wrapping through the seam met a phantom face). Returns (normal, offset, container):
     container says whether the particle's body is a wall_box (whose faces the shift may mirror the fluid in)."""
     dim = cfg.dim
