@@ -31,6 +31,7 @@ def test_the_note_names_the_mach_number_its_source_and_the_speed_to_declare():
     assert sound_speed_note(config_from_dict(_column("isph", reference_speed=1.0)), 3.6) is None
 
 
+@pytest.mark.slow  # 25-34 s of the README set's budget
 def test_a_density_error_from_a_flow_faster_than_its_declared_speed_is_put_down_to_the_sound_speed():
     """The column declared at 2.5 m/s with c0_factor 4 (c0 10 m/s) collapses at 4.2 m/s (Mach 0.42): the
     density error guard trips at 0.39 s, and its detail says the flow outran c0 and names the speed to declare. Declared at the

@@ -4,6 +4,7 @@ stats read-back a step, an f32 clock left host-stepped, and checkpoints that do 
 import math
 
 import numpy as np
+import pytest
 from test_ppe_loop import by_id, launched
 
 from taichi_sph.config.loader import bundled_configs_dir, load_config
@@ -20,6 +21,7 @@ def dam_break(*overrides: str):
     return solver
 
 
+@pytest.mark.slow  # 30-39 s of the README set's budget (the batch test beside it keeps the device loop in it)
 def test_device_dt_equals_the_host_rule_bit_for_bit():
     """A gravity ramp (cos on the device in f64), an output time inside the run and a cut last step: the device
     path takes the host path's dts, dt limits, PPE records and state bit for bit."""

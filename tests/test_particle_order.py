@@ -202,7 +202,7 @@ def test_order_log_extremes_and_warnings():
     assert "void at t = 0.5" in w
 
 
-@pytest.mark.parametrize("solver", ["wcsph", "isph"])
+@pytest.mark.parametrize("solver", ["wcsph", pytest.param("isph", marks=pytest.mark.slow)])  # isph: 20-30 s
 def test_order_columns_in_a_real_run(tmp_path, solver):
     """dam_break_2d at dx = 0.05, t = 0.1 s: the columns in timeseries.csv, the block in summary.json."""
     from taichi_sph.config.loader import bundled_configs_dir, load_config

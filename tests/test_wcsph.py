@@ -203,7 +203,7 @@ def spray_tank(allowed: float, solver: str = "wcsph"):
         "output": {"every": 0.05}})
 
 
-@pytest.mark.parametrize("solver", ["wcsph", "isph"])
+@pytest.mark.parametrize("solver", ["wcsph", pytest.param("isph", marks=pytest.mark.slow)])  # isph: 20-28 s
 def test_spray_may_leave_the_domain_and_come_back_within_the_allowance(solver):
     """Outside, the droplet has no neighbour: it flies on under gravity in both solvers (ISPH: no PPE row)."""
     res = run(spray_tank(0.01, solver))  # 401 fluid particles: 4 may be outside
