@@ -26,6 +26,15 @@ def channel(dx: float, fluid_top: float = 0.04, **extra) -> dict:
             "time": {"t_end": 0.1}, **extra}
 
 
+def tank(fluid_lo, fluid_hi, *blocks: dict) -> dict:
+    """A user's open tank 1 x 0.6 m at dx 0.025, its fluid block [fluid_lo, fluid_hi] and `blocks` (wall_blocks)."""
+    return {"dim": 2, "gravity": [0.0, -9.81], "domain": {"lo": [-0.2, -0.2], "hi": [1.2, 2.0]},
+            "particles": {"dx": 0.025},
+            "bodies": [{"type": "fluid_block", "lo": fluid_lo, "hi": fluid_hi},
+                       {"type": "wall_box", "lo": [0.0, 0.0], "hi": [1.0, 0.6], "open_top": True},
+                       *blocks]}
+
+
 def _closest_to_walls(a, period: float) -> float:
     """The closest fluid-to-wall distance (periodic along x)."""
     f, w = a.x[a.kind == FLUID].astype(float), a.x[a.kind != FLUID].astype(float)
@@ -80,11 +89,7 @@ def test_a_block_standing_in_a_tank_has_its_own_faces():
     """An obstacle on a tank's floor: the box claimed its particles (their face was the floor's), so the kinematic
     wall condition did not hold the fluid off the obstacle's sides (ISPH's fluid came within 0.014 dx of them and a
     user's dam break onto it ended "unstable"; docs/notes/walls.md). Its particles face out of the block now."""
-    cfg = config_from_dict({
-        "dim": 2, "gravity": [0.0, -9.81], "domain": {"lo": [-0.2, -0.2], "hi": [1.2, 2.0]}, "particles": {"dx": 0.025},
-        "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.3, 0.4]},
-                   {"type": "wall_box", "lo": [0.0, 0.0], "hi": [1.0, 0.6], "open_top": True},
-                   {"type": "wall_block", "lo": [0.6, 0.0], "hi": [0.7, 0.1]}]})
+    cfg = config_from_dict(tank([0.0, 0.0], [0.3, 0.4], {"type": "wall_block", "lo": [0.6, 0.0], "hi": [0.7, 0.1]}))
     a = build_particles(cfg)
     normal, offset, container = wall_face_planes(cfg, a.x, a.kind)
     block = (a.kind == WALL) & np.all((a.x > [0.6, 0.0]) & (a.x < [0.7, 0.1]), axis=1)
@@ -101,12 +106,8 @@ def test_a_step_laid_into_a_tanks_wall_layers_does_not_double_its_particles():
     """A step on the floor drawn from inside the left wall (lo x = -0.1): its particles in the wall's layers sat on
     the wall's own (16 doubled at dx 0.025, twice the wall's volume there); the box's win."""
     step = {"type": "wall_block", "lo": [-0.1, 0.0], "hi": [0.3, 0.1]}
-    data = {"dim": 2, "gravity": [0.0, -9.81], "domain": {"lo": [-0.2, -0.2], "hi": [1.2, 2.0]},
-            "particles": {"dx": 0.025},
-            "bodies": [{"type": "fluid_block", "lo": [0.0, 0.1], "hi": [0.3, 0.5]},
-                       {"type": "wall_box", "lo": [0.0, 0.0], "hi": [1.0, 0.6], "open_top": True}]}
-    box = build_particles(config_from_dict(data))
-    both = build_particles(config_from_dict({**data, "bodies": data["bodies"] + [step]}))
+    box = build_particles(config_from_dict(tank([0.0, 0.1], [0.3, 0.5])))
+    both = build_particles(config_from_dict(tank([0.0, 0.1], [0.3, 0.5], step)))
     walls = both.x[both.kind == WALL]
     assert len(np.unique(np.round(walls / 1e-6), axis=0)) == len(walls)
     assert len(walls) == (box.kind == WALL).sum() + 16 * 4 - 16  # the step's 16 x 4 less the 16 in the wall's layers
@@ -131,11 +132,7 @@ def test_a_step_against_a_tanks_wall_does_not_face_into_that_wall():
     """A step on the floor against the left wall: its corner particle under the fluid is as near its left face (laid
     on the tank's wall, which no fluid reaches) as its top; it faces up, so the fluid above is not held against the
     tank's wall by a face behind it."""
-    cfg = config_from_dict({
-        "dim": 2, "gravity": [0.0, -9.81], "domain": {"lo": [-0.2, -0.2], "hi": [1.2, 2.0]}, "particles": {"dx": 0.025},
-        "bodies": [{"type": "fluid_block", "lo": [0.0, 0.1], "hi": [0.3, 0.5]},
-                   {"type": "wall_box", "lo": [0.0, 0.0], "hi": [1.0, 0.6], "open_top": True},
-                   {"type": "wall_block", "lo": [0.0, 0.0], "hi": [0.3, 0.1]}]})
+    cfg = config_from_dict(tank([0.0, 0.1], [0.3, 0.5], {"type": "wall_block", "lo": [0.0, 0.0], "hi": [0.3, 0.1]}))
     a = build_particles(cfg)
     normal, offset, _ = wall_face_planes(cfg, a.x, a.kind)
     corner = (a.kind == WALL) & np.all(np.isclose(a.x, [0.0125, 0.0875]), axis=1)

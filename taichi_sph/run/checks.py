@@ -223,7 +223,9 @@ def _body_lattice(cfg: Config) -> list[CheckResult]:
     """A box's upper face that its particles do not reach: a box of length L along an axis gets round(L / s)
     particles at spacing s (dx; a wall's dx / walls.refinement) laid from its lower face (scene/bodies.py), so they
     fill [lo, lo + round(L / s) s] and the upper face sits (round(L / s) - L / s) s off the declared one. Checked:
-    a square-packed fluid_block's faces, a wall_box's inner faces (not an open top) and a wall_block's."""
+    a square-packed fluid_block's faces, a wall_box's inner faces (not an open top) and a wall_block's. (The faces
+    the run uses are scene/lattice.py `lattice_end`, the same rounding without the at-least-one-spacing floor that
+    this message's suggested dx needs.)"""
     out: list[CheckResult] = []
     dx = cfg.particles.dx
     for i, b in enumerate(cfg.bodies):
@@ -245,9 +247,9 @@ def _body_lattice(cfg: Config) -> list[CheckResult]:
                 where = "beyond" if off > 0 else "short of"
                 out.append(CheckResult(
                     "body_lattice", f"bodies[{i}] ({b.type}) spans {n:.5g} particle spacings on axis {a} and gets "
-                    f"{whole}: its particles end at {end:.6g} m, {abs(off) / dx:.2f} dx {where} its face hi[{a}] = {b.hi[a]:g} (they are laid "
-                    f"from lo at spacing {s:g}); set hi[{a}] to {end:.6g} to say so, or particles.dx to "
-                    f"{r * length / whole:.6g} ({whole} spacings)"))
+                    f"{whole}: its particles end at {end:.6g} m, {abs(off) / dx:.2f} dx {where} its face "
+                    f"hi[{a}] = {b.hi[a]:g} (they are laid from lo at spacing {s:g}); set hi[{a}] to {end:.6g} to say "
+                    f"so, or particles.dx to {r * length / whole:.6g} ({whole} spacings)"))
     return out
 
 

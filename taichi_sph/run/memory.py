@@ -18,6 +18,7 @@ import numpy as np
 
 from taichi_sph.config.schema import AUTO, Body, Config
 from taichi_sph.scene.bodies import fluid_body_points
+from taichi_sph.scene.confinement import wcsph_shift_by_confinement
 from taichi_sph.scene.lattice import auto_neighbour_capacity, axis_points
 from taichi_sph.sph.kernels import support_factor
 
@@ -153,8 +154,7 @@ def device_bytes_per_particle(cfg: Config, n_fluid: int, n_wall: int, render: bo
         floats += d
     # WCSPH's shift left unset is on where the fluid fills its container (scene/confinement.py), which only the built
     # particles tell: counted as on, an upper bound of d floats and an int a particle
-    confined_shift = cfg.solver == "wcsph" and cfg.shifting.enabled is None and not cfg.wcsph.transport_velocity
-    if f.shifting or confined_shift:
+    if f.shifting or wcsph_shift_by_confinement(cfg):
         floats += d + d * f.shifting_correction          # the shift (+ the Taylor correction's dv)
         floats += f.shifting_density in ("taylor", "continuity")  # the density's correction
         ints += 1                                         # this step's surface flags

@@ -53,6 +53,12 @@ def fills_container(cfg: Config, arrays: ParticleArrays) -> bool:
     return True
 
 
+def wcsph_shift_by_confinement(cfg: Config) -> bool:
+    """Whether this WCSPH scene's shift is left for its particles to decide (confined_shifting): `shifting.enabled`
+    unset and no transport velocity (which regularises the arrangement itself and refuses a shift)."""
+    return cfg.solver == "wcsph" and cfg.shifting.enabled is None and not cfg.wcsph.transport_velocity
+
+
 def confined_shifting(cfg: Config, arrays: ParticleArrays, fills: bool | None = None) -> Config:
     """`shifting.enabled` left unset (None) decided for this scene: on for ISPH; for WCSPH on where the fluid fills
     its container (`fills_container`) and the scene does not take Adami's transport velocity (which regularises the
@@ -64,9 +70,7 @@ def confined_shifting(cfg: Config, arrays: ParticleArrays, fills: bool | None = 
         return cfg
     if cfg.solver == "isph":
         return replace(cfg, shifting=replace(sh, enabled=True))
-    if fills is None:
-        fills = fills_container(cfg, arrays)
-    if cfg.wcsph.transport_velocity or not fills:
+    if not wcsph_shift_by_confinement(cfg) or not (fills_container(cfg, arrays) if fills is None else fills):
         return replace(cfg, shifting=replace(sh, enabled=False))
     coefficient = CONFINED_SHIFT_COEFFICIENT if sh.coefficient is None else sh.coefficient
     return replace(cfg, shifting=replace(sh, enabled=True, coefficient=coefficient))
