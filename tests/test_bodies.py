@@ -137,3 +137,18 @@ def test_a_step_against_a_tanks_wall_does_not_face_into_that_wall():
     normal, offset, _ = wall_face_planes(cfg, a.x, a.kind)
     corner = (a.kind == WALL) & np.all(np.isclose(a.x, [0.0125, 0.0875]), axis=1)
     assert corner.sum() == 1 and np.allclose(normal[corner], [0.0, 1.0]) and np.allclose(offset[corner], 0.1)
+
+
+def test_a_block_in_a_second_tank_keeps_the_faces_the_first_tank_does_not_touch():
+    """Two tanks side by side, a step in the right one: its right face lies beyond the left tank's right wall
+    (x 2.6 > 1.0) but touches nothing; it was taken for buried there and its right column faced down or up."""
+    data = tank([0.0, 0.0], [0.3, 0.5])
+    data["domain"] = {"lo": [-0.2, -0.2], "hi": [3.2, 2.0]}
+    data["bodies"] += [{"type": "fluid_block", "lo": [2.0, 0.1], "hi": [2.3, 0.5]},
+                       {"type": "wall_box", "lo": [2.0, 0.0], "hi": [3.0, 0.6], "open_top": True},
+                       {"type": "wall_block", "lo": [2.4, 0.0], "hi": [2.6, 0.1]}]
+    cfg = config_from_dict(data)
+    a = build_particles(cfg)
+    normal, offset, _ = wall_face_planes(cfg, a.x, a.kind)
+    right = (a.kind == WALL) & np.all(np.isclose(a.x, [2.5875, 0.0375]), axis=1)
+    assert right.sum() == 1 and np.allclose(normal[right], [1.0, 0.0]) and np.allclose(offset[right], 2.6)

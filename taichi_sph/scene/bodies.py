@@ -217,10 +217,14 @@ def _clear_of_walls(cfg: Config, x: np.ndarray, kind: np.ndarray, clearance: flo
 def _buried_faces(cfg: Config, block: Body, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
     """Which of a wall_block's faces (columns lo_0, hi_0, lo_1, ...) lie on or behind a wall_box's inner face: no
     fluid reaches them, and a particle at the block's edge given one (a tie with the face the fluid sees) held the
-    fluid beside it by a face behind it. Never all of them."""
+    fluid beside it by a face behind it. Only a box the block meets counts (its layers included): a block in
+    another tank beside it lies beyond that tank's faces without touching them. Never all of them."""
     buried = np.zeros(2 * cfg.dim, dtype=bool)
     for box in cfg.bodies:
         if box.type != "wall_box":
+            continue
+        outer_lo, outer_hi = (np.asarray(c, float) for c in cfg.wall_box_extent(box))
+        if np.any(hi < outer_lo - 1e-9) or np.any(lo > outer_hi + 1e-9):
             continue
         box_lo, box_hi = np.asarray(box.lo, float), lattice_upper_faces(cfg, box)
         for a in range(cfg.dim):
