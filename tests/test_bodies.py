@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from taichi_sph.config.loader import config_from_dict, load_config
-from taichi_sph.run.checks import a_priori_checks
+from taichi_sph.config.loader import bundled_configs_dir, config_from_dict, load_config
+from taichi_sph.run.checks import a_priori_checks, reachable_wall_layers
 from taichi_sph.scene.bodies import FLUID, WALL, build_particles, wall_face_planes
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -152,3 +152,20 @@ def test_a_block_in_a_second_tank_keeps_the_faces_the_first_tank_does_not_touch(
     normal, offset, _ = wall_face_planes(cfg, a.x, a.kind)
     right = (a.kind == WALL) & np.all(np.isclose(a.x, [2.5875, 0.0375]), axis=1)
     assert right.sum() == 1 and np.allclose(normal[right], [1.0, 0.0]) and np.allclose(offset[right], 2.6)
+
+
+def test_wall_layers_are_judged_by_the_depth_the_fluid_reaches():
+    """cavity_re1000_2d's 3 layers (Wendland C2 at h 1.8 dx: support 3.6 spacings) were warned about, but a fluid
+    particle held 0.25 dx from the face reaches 3.35 dx into the wall, whose third layer is centred 2.5 dx deep and
+    its fourth would be 3.5 dx deep. With the kinematic condition off the fluid touches the face and reaches it."""
+    path = bundled_configs_dir() / "cavity_re1000_2d.yaml"
+    for solver in ("wcsph", "isph"):
+        cfg = load_config(path, [f"solver={solver}"])
+        assert reachable_wall_layers(cfg) == 3 and cfg.wall_layers(cfg.bodies[1]) == 3
+        assert not [c for c in a_priori_checks(cfg) if c.code == "wall_layers"]
+    off = load_config(path, ["wcsph.wall_clearance=null"])
+    assert reachable_wall_layers(off) == 4
+    assert [c.message for c in a_priori_checks(off) if c.code == "wall_layers"] == [
+        "bodies[1] has 3 wall layers but the kernel support (0.036 m) reaches 4 from the fluid: particles near the "
+        "wall lack neighbours; set layers: 4"]
+    assert reachable_wall_layers(load_config(path, ["particles.hdx=2.0"])) == 4  # the default h: 4 dx, 3.25 reached

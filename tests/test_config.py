@@ -60,7 +60,7 @@ def test_wall_layers_default_to_the_kernel_support(tmp_path):
     assert (wcsph.hdx, isph.hdx) == (2.0, 1.5), "2D defaults (ISPH 1.5 dx since session 26: docs/isph.md)"
     wave3d = bundled_configs_dir() / "standing_wave_3d.yaml"  # no hdx: the 3D defaults
     assert (load_config(wave3d).hdx, load_config(wave3d, ["solver=isph"]).hdx) == (2.0, 1.3)
-    assert not [c for c in a_priori_checks(wcsph) + a_priori_checks(isph) if c.name == "wall_layers"]
+    assert not [c for c in a_priori_checks(wcsph) + a_priori_checks(isph) if c.code == "wall_layers"]
     n_wall = {cfg.solver: build_particles(cfg).n_wall for cfg in (wcsph, isph)}
     assert n_wall["wcsph"] > n_wall["isph"]
     pinned = load_config(path, ["bodies=" + repr([{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [0.5, 0.5]},

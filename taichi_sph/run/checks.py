@@ -174,6 +174,17 @@ def _unbounded(cfg: Config) -> list[CheckResult]:
                                      f"reflecting.enabled: true", severe=True)]
 
 
+def reachable_wall_layers(cfg: Config) -> int:
+    """The wall_box layers a fluid particle's support reaches: a box's particles lie half a wall spacing s_w = dx /
+    walls.refinement and more behind its face, and the kinematic wall condition holds the fluid c = wall_clearance dx
+    in front of it (0 when off), so the support 2h reaches depth 2h - c dx and needs
+    ceil((2h - c dx - s_w / 2) / dx) layers of thickness dx. (Wendland C2 at h 1.8 dx, c 0.25: 3, where the
+    support spans 3.6 spacings; at the default 2 dx: 4.)"""
+    support = support_factor(cfg.particles.kernel) * cfg.h / cfg.particles.dx
+    clearance = cfg.wall_clearance or 0.0
+    return max(1, int(math.ceil(support - clearance - 0.5 / cfg.wall_refinement - 1e-9)))
+
+
 def _walls(cfg: Config) -> list[CheckResult]:
     out: list[CheckResult] = []
     dx = cfg.particles.dx
@@ -181,12 +192,13 @@ def _walls(cfg: Config) -> list[CheckResult]:
     need = cfg.support_layers
     for i, b in enumerate(cfg.bodies):
         layers = cfg.wall_layers(b)
-        if b.type == "wall_box" and layers < need:
+        reach = reachable_wall_layers(cfg)
+        if b.type == "wall_box" and layers < reach:
             thin = layers * dx < 0.5 * support
             out.append(CheckResult("wall_layers", f"bodies[{i}] has {layers} wall layers but the kernel support "
-                                                  f"({support:.3g} m) spans {need}: particles near the wall lack "
-                                                  f"neighbours" + (" and can pass through it" if thin else "")
-                                                  + f"; set layers: {need}", severe=thin))
+                                                  f"({support:.3g} m) reaches {reach} from the fluid: particles near "
+                                                  f"the wall lack neighbours" + (" and can pass through it" if thin else "")
+                                                  + f"; set layers: {reach}", severe=thin))
         elif b.type == "wall_block":
             for a in range(cfg.dim):
                 rows = round((b.hi[a] - b.lo[a]) / cfg.wall_dx) / cfg.wall_refinement  # in fluid spacings
