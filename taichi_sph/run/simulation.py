@@ -450,9 +450,10 @@ class Simulation:
                                  f"guards.particles_outside); the first at {self.loop.outside_note}")
         order = self.order_log.warnings(density_drift_cause(self.cfg))
         self.warnings.extend(w for w in order if w not in self.warnings)
-        inside_floor = self.energy.growth_inside_floor(self.loop) if status == "ok" else None
-        if inside_floor is not None:
-            self.warnings.append(inside_floor)
+        gain = (self.energy.growth_inside_floor(self.loop) or self.energy.gain_below_bound(self.loop)
+                if status == "ok" else None)
+        if gain is not None:
+            self.warnings.append(gain)
         fast = sound_speed_note(self.cfg, self.loop.peak_speed) if status == "ok" else None
         if fast is not None:
             self.warnings.append(f"max density error {self.loop.max_rho_err:.2g} at the output rows: {fast}")
