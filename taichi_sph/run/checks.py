@@ -177,8 +177,8 @@ def _unbounded(cfg: Config) -> list[CheckResult]:
 def reachable_wall_layers(cfg: Config) -> int:
     """The wall_box layers a fluid particle's support reaches: a box's particles lie half a wall spacing s_w = dx /
     walls.refinement and more behind its face, and the kinematic wall condition holds the fluid c = wall_clearance dx
-    in front of it (0 when off), so the support 2h reaches depth 2h - c dx and needs
-    ceil((2h - c dx - s_w / 2) / dx) layers of thickness dx. (Wendland C2 at h 1.8 dx, c 0.25: 3, where the
+    in front of it (0 when off), so the support radius r (2h for the Wendland kernels) reaches depth r - c dx and
+    needs ceil((r - c dx - s_w / 2) / dx) layers of thickness dx. (Wendland C2 at h 1.8 dx, c 0.25: 3, where the
     support spans 3.6 spacings; at the default 2 dx: 4.)"""
     support = support_factor(cfg.particles.kernel) * cfg.h / cfg.particles.dx
     clearance = cfg.wall_clearance or 0.0
@@ -189,10 +189,9 @@ def _walls(cfg: Config) -> list[CheckResult]:
     out: list[CheckResult] = []
     dx = cfg.particles.dx
     support = support_factor(cfg.particles.kernel) * cfg.h
-    need = cfg.support_layers
+    need, reach = cfg.support_layers, reachable_wall_layers(cfg)
     for i, b in enumerate(cfg.bodies):
         layers = cfg.wall_layers(b)
-        reach = reachable_wall_layers(cfg)
         if b.type == "wall_box" and layers < reach:
             thin = layers * dx < 0.5 * support
             out.append(CheckResult("wall_layers", f"bodies[{i}] has {layers} wall layers but the kernel support "
