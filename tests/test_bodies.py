@@ -169,3 +169,17 @@ def test_wall_layers_are_judged_by_the_depth_the_fluid_reaches():
         "bodies[1] has 3 wall layers but the kernel support (0.036 m) reaches 4 from the fluid: particles near the "
         "wall lack neighbours; set layers: 4"]
     assert reachable_wall_layers(load_config(path, ["particles.hdx=2.0"])) == 4  # the default h: 4 dx, 3.25 reached
+
+
+def test_a_fluid_block_thinner_than_the_support_is_warned_about_unless_another_lies_on_it():
+    """The wet bed: a 2 cm layer at dx 0.01 (2 rows; WCSPH's support spans 4) beside a column. The column lying
+    against the bed's end does not make the bed thicker; a second layer laid on it does."""
+    data = tank([0.0, 0.0], [0.3, 0.3], {"type": "fluid_block", "lo": [0.3, 0.0], "hi": [1.0, 0.02]})
+    data["bodies"] = [data["bodies"][0], data["bodies"][2], data["bodies"][1]]
+    data["particles"] = {"dx": 0.01}
+    thin = [c.message for c in a_priori_checks(config_from_dict(data)) if c.code == "thin_fluid"]
+    assert thin == ["bodies[1] (fluid_block) is 2 particle rows thick along axis 1, fewer than the kernel support "
+                    "spans (4): its particles' kernels are cut on both sides; make it 4 rows (0.04 m) thick or refine "
+                    "particles.dx"]
+    data["bodies"].append({"type": "fluid_block", "lo": [0.3, 0.02], "hi": [1.0, 0.04]})
+    assert not [c for c in a_priori_checks(config_from_dict(data)) if c.code == "thin_fluid"]

@@ -1,5 +1,7 @@
 """The ISPH kinematic wall condition (physics/walls.py) and the wall faces it acts on (geometry.wall_face_planes)."""
 
+from functools import cache
+
 import numpy as np
 import pytest
 
@@ -87,9 +89,11 @@ def test_no_wall_face_across_a_periodic_axis():
     assert np.allclose(normal[walls & (arrays.x[:, 1] > -0.05)], [0.0, 1.0])
 
 
+@cache
 def _slide(solver_name: str, artificial_viscosity: str, slip: str = "free_slip") -> float:
     """A uniform stream u = U along x between two resting plates (free-slip unless said), periodic in x, no gravity,
-    Monaghan's artificial viscosity alpha 0.1 (no laminar viscosity): the mean u of the fluid after 0.1 s over U."""
+    Monaghan's artificial viscosity alpha 0.1 (no laminar viscosity): the mean u of the fluid after 0.1 s over U.
+    Cached: the two tests below share the free-slip 'relative' runs (a run is deterministic)."""
     t_end = 0.1
     cfg = config_from_dict({
         "name": "slide", "dim": 2, "solver": solver_name, "gravity": [0.0, 0.0],

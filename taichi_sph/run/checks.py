@@ -3,7 +3,7 @@
 Each check judges one thing that can be known before the first step: `mach` (U / c0), `cfl_number` (the adaptive
 Courant number), `cfl_dt` / `force_dt` / `viscous_dt` (a fixed dt against its limits), `support` (neighbours per
 kernel support on the lattice), `neighbour_capacity`, `wall_layers` (wall thickness against the support),
-`unbounded` (gravity with nothing to stop the fluid), `periodic_lattice` (a periodic length that dx does not
+`thin_fluid` (a fluid_block thinner than the support), `unbounded` (gravity with nothing to stop the fluid), `periodic_lattice` (a periodic length that dx does not
 divide) and `body_lattice` (a box whose particles end off its declared face). A check is `severe` when the set-up
 cannot give a meaningful result: `taichi-sph run` refuses it (exit 2, one line; `--force` runs anyway) and
 `taichi-sph stability` reports it as the reason it refused the case; the rest are warnings. The thresholds and their
@@ -42,7 +42,7 @@ FACE_OFFSET_WARN = 0.25
 @dataclass(frozen=True)
 class CheckResult:
     code: str          # short id: mach, cfl_number, cfl_dt, force_dt, viscous_dt, support,
-                       # neighbour_capacity, wall_layers, unbounded, periodic_lattice, body_lattice
+                       # neighbour_capacity, wall_layers, thin_fluid, unbounded, periodic_lattice, body_lattice
     message: str
     severe: bool = False   # the run is very likely to blow up or give garbage
 
@@ -210,6 +210,31 @@ def _walls(cfg: Config) -> list[CheckResult]:
     return out
 
 
+def _thin_fluid(cfg: Config) -> list[CheckResult]:
+    """A fluid_block fewer particle rows thick along a non-periodic axis than the kernel support spans, with no other
+    fluid_block against it across that axis: every particle's kernel is cut on both sides (a sheet's density and
+    pressure, not a fluid's). A user's 2 cm bed at dx 1 cm (2 rows) paired and gained energy under WCSPH
+    (docs/notes/user_scenes.md)."""
+    out: list[CheckResult] = []
+    need, dx = cfg.support_layers, cfg.particles.dx
+    blocks = [(i, np.asarray(b.lo, float), np.asarray(b.hi, float)) for i, b in enumerate(cfg.bodies)
+              if b.type == "fluid_block"]
+    for i, lo, hi in blocks:
+        for a in range(cfg.dim):
+            rows = round((hi[a] - lo[a]) / dx)
+            if cfg.periodic[a] or rows >= need:
+                continue
+            others = [k for k in range(cfg.dim) if k != a]
+            joined = any(j != i and (abs(l2[a] - hi[a]) < 1e-9 or abs(h2[a] - lo[a]) < 1e-9)
+                         and all(l2[k] < hi[k] and h2[k] > lo[k] for k in others) for j, l2, h2 in blocks)
+            if not joined:
+                out.append(CheckResult("thin_fluid", f"bodies[{i}] (fluid_block) is {rows} particle rows thick along "
+                                                     f"axis {a}, fewer than the kernel support spans ({need}): its "
+                                                     f"particles' kernels are cut on both sides; make it {need} rows "
+                                                     f"({need * dx:.4g} m) thick or refine particles.dx"))
+    return out
+
+
 def _periodic_lattice(cfg: Config) -> list[CheckResult]:
     """A periodic length L that is not a whole number of dx: the lattice (round(L / dx) points a body spanning the
     period gets) does not tile the period, and the rows either side of the seam start (L / dx - round(L / dx) + 1) dx
@@ -267,7 +292,7 @@ def _body_lattice(cfg: Config) -> list[CheckResult]:
 def a_priori_checks(cfg: Config) -> list[CheckResult]:
     """Everything that can be judged before the first step."""
     return (_mach(cfg) + _time_step(cfg) + _support(cfg) + _neighbour_capacity(cfg) + _walls(cfg)
-            + _unbounded(cfg) + _periodic_lattice(cfg) + _body_lattice(cfg))
+            + _thin_fluid(cfg) + _unbounded(cfg) + _periodic_lattice(cfg) + _body_lattice(cfg))
 
 
 def severe_checks(cfg: Config) -> list[CheckResult]:
