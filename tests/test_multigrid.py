@@ -249,14 +249,17 @@ def test_ppe_loop_schedules_give_bit_identical_runs(method):
     """On the CPU every PPE reduction sums fixed blocks in a fixed order (linalg/reduction.py), so the
     one-thread and the thread-pool schedule (and the probe that times both) give the same run bit for bit.
     With parallel float atomics two dam-break runs drifted apart by ~3e-6 m."""
+    from taichi_sph.run.rewind import SolverMemento
     from taichi_sph.solvers.registry import make_solver
     cfg = load_config(bundled_configs_dir() / "dam_break_2d.yaml", ["particles.dx=0.04", "solver=isph",
                                                                     f"isph.ppe.solver={method}"])
     states = []
+    solver = make_solver(cfg, build_particles(cfg))  # one solver, rewound for the second schedule (one compile)
+    solver.prepare()
+    start = SolverMemento(solver)
     for serial in (True, False):
-        solver = make_solver(cfg, build_particles(cfg))
+        start.restore()
         solver.ppe.serial = serial
-        solver.prepare()
         for _ in range(20):
             solver.step()
         assert solver.ppe.serial is serial and solver.ppe.solver == method
