@@ -35,12 +35,17 @@ def by_id(solver):
 def test_runs_do_not_depend_on_check_every(method):
     """12 dam-break steps read back every iteration, every 3 and every 50 (more than a solve needs): the same
     iteration counts and residuals, and the same state bit for bit."""
+    from taichi_sph.run.rewind import SolverMemento
     runs = {}
+    solver = dam_break(method, 1)  # one solver, rewound for each check_every (a host-side setting): one compile
+    start = SolverMemento(solver)
     for k in (1, 3, 50):
-        solver = dam_break(method, k)
+        start.restore()
+        solver.ppe.check_every = k
         for _ in range(12):
             solver.step()
-        runs[k] = (solver.iterations, solver.residuals, by_id(solver), solver.t)
+        assert len(solver.iterations) == 12
+        runs[k] = (list(solver.iterations), list(solver.residuals), by_id(solver), solver.t)
     its = runs[1][0]
     assert min(its) > 3 and max(its) < 100  # they iterated, and not to the cap
     assert any(i % 3 for i in its)  # not all multiples of 3: stopping inside a batch of 3 is exercised
@@ -54,17 +59,21 @@ def test_runs_do_not_depend_on_check_every(method):
 def test_jacobi_stops_on_the_iteration_and_does_not_depend_on_check_every():
     """Jacobi's test is on the residual of the current iterate: the count need not be a multiple of check_every,
     and the run is the same for check_every 1 and 7."""
+    from taichi_sph.run.rewind import SolverMemento
     from taichi_sph.scene.bodies import build_particles as build
     from taichi_sph.solvers.isph import ISPHSolver
     out = {}
+    cfg = tank_cfg(isph={"ppe": {"solver": "jacobi", "check_every": 1}})
+    solver = ISPHSolver(cfg, build(cfg))  # one solver, rewound for each check_every: one compile
+    solver.ppe.serial = True
+    solver.prepare()
+    start = SolverMemento(solver)
     for k in (1, 7):
-        cfg = tank_cfg(isph={"ppe": {"solver": "jacobi", "check_every": k}})
-        solver = ISPHSolver(cfg, build(cfg))
-        solver.ppe.serial = True
-        solver.prepare()
+        start.restore()
+        solver.ppe.check_every = k
         for _ in range(3):
             solver.step()
-        out[k] = (solver.iterations, solver.residuals, solver.particles.p.to_numpy())
+        out[k] = (list(solver.iterations), list(solver.residuals), solver.particles.p.to_numpy())
     assert out[1][0] == out[7][0] and out[1][1] == out[7][1]
     assert any(i % 7 for i in out[1][0]) and all(r <= 1e-4 for r in out[1][1])
     np.testing.assert_array_equal(out[1][2], out[7][2])
