@@ -3,8 +3,8 @@
 Each check judges one thing that can be known before the first step: `mach` (U / c0), `cfl_number` (the adaptive
 Courant number), `cfl_dt` / `force_dt` / `viscous_dt` (a fixed dt against its limits), `support` (neighbours per
 kernel support on the lattice), `neighbour_capacity`, `wall_layers` (wall thickness against the support),
-`thin_fluid` (a fluid_block thinner than the support), `unbounded` (gravity with nothing to stop the fluid), `periodic_lattice` (a periodic length that dx does not
-divide) and `body_lattice` (a box whose particles end off its declared face). A check is `severe` when the set-up
+`thin_fluid` (a fluid_block thinner than the support), `unbounded` (gravity with nothing to stop the fluid),
+`periodic_lattice` (a periodic length that dx does not divide) and `body_lattice` (a box whose particles end off its declared face). A check is `severe` when the set-up
 cannot give a meaningful result: `taichi-sph run` refuses it (exit 2, one line; `--force` runs anyway) and
 `taichi-sph stability` reports it as the reason it refused the case; the rest are warnings. The thresholds and their
 reasons: docs/notes/checks.md.

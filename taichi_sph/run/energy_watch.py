@@ -76,15 +76,23 @@ class EnergyWatch:
                        "switch the guard off (guards.energy_growth: null)")
         return {"criterion": "energy_growth", "detail": detail}
 
+    def _growth_start_peak(self, loop: LoopState) -> tuple[float, float, float] | None:
+        """(guards.energy_growth, start, peak) of a guarded run with a positive start and a finite peak, for the
+        warnings below; None otherwise."""
+        start, peak = loop.energy_start, loop.energy_peak
+        if not self.guarded or start is None or peak is None or start <= 0.0 or not np.isfinite(peak):
+            return None
+        return self.cfg.guards.energy_growth, start, peak
+
     def growth_inside_floor(self, loop: LoopState) -> str | None:
         """A warning when the energy above rest peaked past (1 + guards.energy_growth) x its start but inside the
         floor, so the guard did not end the run: where the scene's own energy is comparable to the floor (a small
         wave: its 2 J against 0.5 J) a gain of tens of percent passes as settling. None otherwise or unguarded."""
-        if not self.guarded or loop.energy_start is None or loop.energy_peak is None or loop.energy_start <= 0.0:
+        watched = self._growth_start_peak(loop)
+        if watched is None:
             return None
-        growth = self.cfg.guards.energy_growth
-        start, peak = loop.energy_start, loop.energy_peak
-        if not np.isfinite(peak) or peak <= (1.0 + growth) * start:
+        growth, start, peak = watched
+        if peak <= (1.0 + growth) * start:
             return None
         return (f"energy above rest peaked {peak / start - 1.0:.0%} above its start ({start:.4g} -> {peak:.4g} J), past "
                 f"guards.energy_growth {growth:g} but within the floor {self.floor:.3g} J the guard allows for the "
@@ -96,10 +104,11 @@ class EnergyWatch:
         floor but stayed under the guard's bound: a closed flow only loses energy, so a gain of that size is the
         scheme's, and the run's "ok" should not pass it in silence. None otherwise, unguarded, or where
         growth_inside_floor speaks."""
-        if not self.guarded or loop.energy_start is None or loop.energy_peak is None or loop.energy_start <= 0.0:
+        watched = self._growth_start_peak(loop)
+        if watched is None:
             return None
-        growth, start, peak = self.cfg.guards.energy_growth, loop.energy_start, loop.energy_peak
-        if not np.isfinite(peak) or peak <= (1.0 + GAIN_WARN * growth) * start + self.floor:
+        growth, start, peak = watched
+        if peak <= (1.0 + GAIN_WARN * growth) * start + self.floor:
             return None
         return (f"energy above rest peaked {peak / start - 1.0:.0%} above its start ({start:.4g} -> {peak:.4g} J) with "
                 f"no energy input, under the guard's bound (guards.energy_growth {growth:g} and the floor "
