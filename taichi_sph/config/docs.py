@@ -25,6 +25,13 @@ def config_reference() -> str:
             if item is not None and is_dataclass_type(item):
                 walk(item, key + "[].")
                 continue
+            optional = [a for a in typing.get_args(tp) if a is not type(None)]
+            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+            if len(optional) == 1 and is_dataclass_type(optional[0]) and default is None:  # an optional section
+                doc = f.metadata.get("doc", "")
+                rows.append(f"| `{key}` |  |  | {doc}; null = none; its keys: |")
+                walk(optional[0], key + ".")
+                continue
             default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
             doc = f.metadata.get("doc", "")
             if f.metadata.get("choices"):

@@ -121,6 +121,15 @@ class Fluid:
 
 
 @dataclass(frozen=True)
+class Motion:
+    amplitude: tuple[float, ...] = opt((), "the oscillation's amplitude along each axis (dim numbers): the body's "
+                                           "displacement d(t) = r(t) A sin(2 pi t / T)", unit="m")
+    period: float = opt(1.0, "the oscillation's period T", unit="s", positive=True)
+    ramp: float | str = opt(AUTO, "r(t) = (1 - cos(pi t / t_ramp)) / 2 for t < t_ramp, then 1: the motion starts "
+                                  "from rest without a jerk; 'auto' = one period, 0 = none", unit="s")
+
+
+@dataclass(frozen=True)
 class Body:
     type: str = opt("fluid_block", "what the body is", choices=("fluid_block", "fluid_sphere", "wall_box", "wall_block"))
     lo: tuple[float, ...] | None = opt(None, "box lower corner (fluid_block, wall_block; inner lower corner of wall_box)", unit="m")
@@ -133,6 +142,9 @@ class Body:
     open_top: bool = opt(True, "wall_box: no wall on the top face (highest axis)")
     velocity: tuple[Any, ...] | None = opt(None, "initial velocity (fluid) or prescribed velocity (wall): dim numbers, or dim "
                                            "expressions of x, y, z, t-free (numpy functions sin, cos, exp, sqrt, pi, ...)", unit="m/s")
+    motion: Motion | None = opt(None, "wall_box/wall_block: a prescribed oscillation of the whole body (a piston wave "
+                                     "maker, a shaken tank): its particles, faces, velocity and acceleration "
+                                     "follow d(t) = r(t) A sin(2 pi t / T) (physics/walls.py oscillating_wall)")
     hydrostatic: bool = opt(False, "fluid_block/fluid_sphere: start with hydrostatic density for the given gravity (free surface at the body top)")
     pressure: Any = opt(None, "fluid: initial pressure, a number or an expression of x, y, z (as velocity, plus "
                                              "square_poisson(x, y, L): lap phi = 1 in the square |x|, |y| < L/2, 0 on its edges); "
@@ -669,9 +681,20 @@ class Config:
 
     @property
     def moving_walls(self) -> bool:
-        """A wall body with a nonzero (or expression) velocity."""
+        """A wall body with a nonzero (or expression) velocity, or a prescribed motion."""
         return any(b.type.startswith("wall") and b.velocity is not None and any(c != 0 for c in b.velocity)
-                   for b in self.bodies)
+                   for b in self.bodies) or bool(self.wall_motions)
+
+    @property
+    def wall_motions(self) -> tuple[tuple[int, "Motion"], ...]:
+        """(index in bodies, motion) of each wall body with a prescribed oscillation, in body order."""
+        return tuple((i, b.motion) for i, b in enumerate(self.bodies) if b.type.startswith("wall") and b.motion)
+
+    @property
+    def wall_motion_speed(self) -> float:
+        """The largest speed a prescribed wall motion reaches, max |A| 2 pi / T (the ramp's overshoot aside)."""
+        return max((math.sqrt(sum(a * a for a in m.amplitude)) * 2.0 * math.pi / m.period
+                    for _, m in self.wall_motions), default=0.0)
 
     @property
     def wall_refinement(self) -> int:
@@ -733,14 +756,16 @@ class Config:
 
     @property
     def expected_speed(self) -> float:
-        """The scene's declared reference speed, else sqrt(2 |g| H_domain), else 1 m/s."""
+        """The scene's declared reference speed, else the larger of sqrt(2 |g| H_domain) (else 1 m/s) and the
+        fastest prescribed wall motion's speed."""
         if self.fluid.reference_speed is not None:
             return self.fluid.reference_speed
         g = math.sqrt(sum(x * x for x in self.gravity_vector))
+        speed = 1.0
         if g > 0:
             height = self.domain.hi[-1] - self.domain.lo[-1]
-            return math.sqrt(2.0 * g * height)
-        return 1.0
+            speed = math.sqrt(2.0 * g * height)
+        return max(speed, self.wall_motion_speed)
 
     @property
     def skin_fraction(self) -> float:

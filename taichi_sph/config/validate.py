@@ -160,19 +160,53 @@ def validate(cfg: Config, source: str) -> None:
                 raise ConfigError(f"periodic length {length:g} on axis {a} is shorter than 3 smoothing lengths; "
                                   "use a smaller particles.dx", source=source, key="domain.periodic")
     _check_wall_velocities(cfg, source)
+    _check_wall_motions(cfg, source)
+
+
+def _check_wall_motions(cfg: Config, source: str) -> None:
+    """A prescribed oscillation (`motion`): on a wall body only, with dim amplitudes, no `velocity` beside it (the
+    motion sets the velocity), not across a periodic axis (a face there does not exist), and inside the domain at
+    its largest displacement."""
+    eps = 1e-9 * max(cfg.domain.hi[a] - cfg.domain.lo[a] for a in range(cfg.dim))
+    for i, b in enumerate(cfg.bodies):
+        if b.motion is None:
+            continue
+        key = f"bodies[{i}].motion"
+        if not b.type.startswith("wall"):
+            raise ConfigError(f"a {b.type} cannot be given a motion: only a wall_box or wall_block moves as prescribed "
+                              f"(a fluid body's motion is its velocity)", source=source, key=key)
+        m = b.motion
+        _check_vec(m.amplitude, cfg.dim, f"{key}.amplitude", source)
+        if m.ramp != AUTO and (isinstance(m.ramp, str) or m.ramp < 0):
+            raise ConfigError(f"must be >= 0 or 'auto', got {m.ramp!r}", source=source, key=f"{key}.ramp")
+        if b.velocity is not None and any(c != 0 for c in b.velocity):
+            raise ConfigError("a moving wall's velocity is its motion's: remove `velocity` (or `motion`)",
+                              source=source, key=f"bodies[{i}].velocity")
+        for a in range(cfg.dim):
+            if cfg.periodic[a] and m.amplitude[a] != 0.0:
+                raise ConfigError(f"the motion's amplitude along the periodic axis {'xyz'[a]} moves no face; set it to 0",
+                                  source=source, key=f"{key}.amplitude")
+        lo, hi = cfg.wall_box_extent(b) if b.type == "wall_box" else (b.lo, b.hi)
+        if any(lo[a] - abs(m.amplitude[a]) < cfg.domain.lo[a] - eps or hi[a] + abs(m.amplitude[a]) > cfg.domain.hi[a] + eps
+               for a in range(cfg.dim) if not cfg.periodic[a]):
+            raise ConfigError(f"the {b.type} [{_fmt(lo)}]..[{_fmt(hi)}] moved by its amplitude [{_fmt(m.amplitude)}] leaves "
+                              f"the domain [{_fmt(cfg.domain.lo)}]..[{_fmt(cfg.domain.hi)}]; enlarge the domain",
+                              source=source, key=key)
 
 
 def _check_wall_velocities(cfg: Config, source: str) -> None:
-    """Refuse a wall velocity across a face the fluid touches. Wall particles never move: a wall's velocity is its
-    surface sliding along its faces (the cavity's lid; physics/walls.py). A velocity across a face would be a
-    piston or a moving tank, which the walls do not model: a user's piston pushing water at 0.3 m/s stayed in place
-    while its velocity pressed the fluid, and both solvers ended "unstable" (density error) within 0.4 s. Numeric
-    velocities only (an expression is not judged); faces across a periodic axis do not exist."""
+    """Refuse a wall velocity across a face the fluid touches. A wall's velocity is its surface sliding along its
+    faces (the cavity's lid; physics/walls.py); its particles stay. A velocity across a face would be a piston or a
+    moving tank, which only a `motion` moves: a user's piston pushing water at 0.3 m/s stayed in place while its
+    velocity pressed the fluid, and both solvers ended "unstable" (density error) within 0.4 s. Numeric velocities
+    only (an expression is not judged); faces across a periodic axis do not exist."""
     tol = 0.5 * cfg.particles.dx
     fluid = [_body_bounds(b) for b in cfg.bodies if b.type.startswith("fluid")]
     names = "xyz"
     for i, b in enumerate(cfg.bodies):
         if not b.type.startswith("wall") or b.velocity is None or any(isinstance(c, str) for c in b.velocity):
+            continue
+        if b.motion is not None:  # _check_wall_motions
             continue
         for a in range(cfg.dim):
             if b.velocity[a] == 0 or cfg.periodic[a]:
@@ -186,9 +220,10 @@ def _check_wall_velocities(cfg: Config, source: str) -> None:
                     if near and across:
                         raise ConfigError(
                             f"the {b.type}'s velocity {list(b.velocity)} m/s crosses its face at {names[a]} = {plane:g} "
-                            f"m, which the fluid touches: wall particles never move, and a wall's velocity is its "
-                            f"surface sliding along its faces (a lid's), so a piston, a wave maker or a moving tank is "
-                            f"not modelled; give the wall a velocity along the faces the fluid touches only",
+                            f"m, which the fluid touches: a wall's velocity is its surface sliding along its faces (a "
+                            f"lid's) while its particles stay; give it a velocity along the faces the fluid touches "
+                            f"only, or move the body with `motion: {{amplitude: [...], period: ...}}` (an "
+                            f"oscillation: a piston wave maker, a shaken tank)",
                             source=source, key=f"bodies[{i}].velocity")
 
 

@@ -1,12 +1,14 @@
 """Wall boundary: Adami, Hu & Adams (2012) pressure and velocity extrapolation to wall particles, and the
 kinematic no-penetration condition for particles the pressure cannot hold off a wall.
 
-The kinematic condition acts on the faces of the wall bodies (scene/bodies.py `wall_face_planes`), fixed planes:
-wall particles are never moved, and a wall's `velocity` is its surface sliding along its faces (a lid), not the
-face moving. Only the fluid's own normal velocity counts: v . n >= -(d - c) / dt (d the distance to the face,
-c the clearance). A box claims only its own particles, and no face is perpendicular to a periodic axis. Why
+The kinematic condition acts on the faces of the wall bodies (scene/bodies.py `wall_face_planes`): a wall's
+`velocity` is its surface sliding along its faces (a lid), not the face moving, and only a body with a prescribed
+`motion` (oscillating_wall: a piston, a shaken tank) carries its particles and faces with it. The condition is
+v . n >= v_w . n - (d - c) / dt (d the distance to the face, c the clearance, v_w . n = 0 but for a moving face). A box claims only its own particles, and no face is perpendicular to a periodic axis. Why
 the condition once acted along the cavity's lid, and what it measured: docs/notes/walls.md.
 """
+
+import math
 
 import taichi as ti
 
@@ -34,15 +36,34 @@ def adami_wall_velocity(v_wall, sum_vw, sum_w: float):
 
 
 @ti.func
-def kinematic_wall_condition(v, normal, distance: float, clearance: float, dt: float):
-    """No flow through a fixed wall face (v . n = 0), as a limit on the approach speed: the particle at
+def oscillating_wall(amplitude, omega: float, ramp: float, t: float):
+    """A prescribed wall oscillation and its first two time derivatives: d(t) = r(t) A sin(omega t), with the ramp
+    r = (1 - cos(pi t / t_r)) / 2 for t < t_r (1 after, and for t_r = 0), so that a wall starts from rest without a
+    jerk in its velocity. Returns (d, d', d'')."""
+    s, c = ti.sin(omega * t), ti.cos(omega * t)
+    r, dr, ddr = 1.0, 0.0, 0.0
+    if t < ramp:
+        k = math.pi / ramp
+        r = 0.5 * (1.0 - ti.cos(k * t))
+        dr = 0.5 * k * ti.sin(k * t)
+        ddr = 0.5 * k * k * ti.cos(k * t)
+    d = r * s * amplitude
+    v = (dr * s + r * omega * c) * amplitude
+    a = (ddr * s + 2.0 * dr * omega * c - r * omega * omega * s) * amplitude
+    return d, v, a
+
+
+@ti.func
+def kinematic_wall_condition(v, normal, distance: float, clearance: float, dt: float, wall_speed: float = 0.0):
+    """No flow through a wall face (v . n = v_w . n), as a limit on the approach speed: the particle at
     `distance` from the face (unit `normal` into the fluid) may approach it by at most
-    distance - clearance in this step: v . n >= -max(distance - clearance, 0) / dt.
-    Tangential velocity is untouched and a particle is never pushed away; the wall's own (sliding)
-    velocity does not enter, since the face does not move (module doc). Returns (v, 1 if it cut)."""
+    distance - clearance in this step: v . n >= v_w . n - max(distance - clearance, 0) / dt, where
+    `wall_speed` = v_w . n is the face's own speed along its normal (0 but for a prescribed motion; a lid slides
+    along its faces). Tangential velocity is untouched and a particle is never pushed away. Returns (v, 1 if it
+    cut)."""
     out = v
     cut = 0
-    floor = -ti.max(distance - clearance, 0.0) / dt
+    floor = wall_speed - ti.max(distance - clearance, 0.0) / dt
     vn = v.dot(normal)
     if vn < floor:
         out = v + (floor - vn) * normal

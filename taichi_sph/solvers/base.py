@@ -19,6 +19,7 @@ from taichi_sph.scene.lattice import lattice_gradient_sum, lattice_kernel_sum, m
 from taichi_sph.solvers.clock import DeviceClock
 from taichi_sph.solvers.state import CheckpointState
 from taichi_sph.solvers.wall_condition import KinematicWalls
+from taichi_sph.solvers.wall_motion import WallMotion
 from taichi_sph.sph.features import Features
 from taichi_sph.sph.kernels import make_kernel
 from taichi_sph.sph.neighbors import NeighborSearch
@@ -26,7 +27,7 @@ from taichi_sph.sph.particles import ParticleFields, np_float
 from taichi_sph.sph.precision import wide_float
 
 
-class SolverBase(KinematicWalls, CheckpointState):
+class SolverBase(KinematicWalls, WallMotion, CheckpointState):
     """Common state and passes. Subclasses implement `prepare()` and `step() -> dt`.
 
     Not decorated with `ti.data_oriented` itself: the concrete solvers are, and that decorator routes
@@ -265,7 +266,7 @@ class SolverBase(KinematicWalls, CheckpointState):
                                      vw=ti.Vector.zero(float, self.dim))
                     NS.for_each_neighbor(a, P.x, self.adami_wall_pair, sums)
                     sum_w, sum_pw, sum_rho_rw, sum_vw = sums.w, sums.pw, sums.rho_rw, sums.vw
-                    body_acc = self.body_force(xa)  # (g - a_wall); walls do not accelerate
+                    body_acc = self.body_force(xa) - self.wall_acceleration(a)  # g - a_w
                     # walls push, never pull: a negative extrapolated pressure (wall above a free surface)
                     # would glue fluid to the wall
                     p = ti.max(adami_wall_pressure(sum_pw, sum_rho_rw, sum_w, body_acc), 0.0)
@@ -277,6 +278,7 @@ class SolverBase(KinematicWalls, CheckpointState):
                     P.mass[a] = rho_w * self.lattice_volume  # a wall particle stands for its (dx / r)^dim of ghost fluid
                     if ti.static(self.features.ghost_velocity):
                         self.v_ghost[a] = adami_wall_velocity(P.v[a], sum_vw, sum_w)
+                    self.fold_moving_wall_stats(a)
 
     @ti.func
     def adami_wall_pair(self, a, b, r_ab, sums: ti.template()):

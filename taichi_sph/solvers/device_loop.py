@@ -93,6 +93,9 @@ class DeviceResidentLoop:
             if C.open_step(i):
                 dt = C.set_dt(self.dt_rule())
                 self.ramped_gravity(C.time_after_step())
+                if ti.static(self.wall_motion):  # the walls move with the drift, to the state the forces are of
+                    self.wall_time[None] = C.time_after_step()
+                    self.wall_velocity_time[None] = C.time_after_step()
                 rebuild = self.skin_used_up(dt)
             self.nsearch.gate[None] = rebuild
 

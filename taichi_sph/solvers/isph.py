@@ -110,7 +110,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         # moving walls bound the step as the fluid does: a lid-driven cavity starts at rest, and the viscous limit
         # alone let the lid move 1.25 dx a step (Re 1000, unstable at t = 0.06 s)
         walls = arrays.kind != FLUID
-        self.wall_speed = float(np.linalg.norm(arrays.v[walls], axis=1).max()) if walls.any() else 0.0
+        self.wall_speed = max(float(np.linalg.norm(arrays.v[walls], axis=1).max()) if walls.any() else 0.0,
+                              cfg.wall_motion_speed)
         self.alpha, self.beta_av = cfg.artificial_viscosity  # isph.artificial_viscosity_alpha or WCSPH's
         self.init_viscosity_switch(cfg, self.alpha)  # the compression rate: the predictor's, before the projection
         # the switch's noise source (isph.switch_noise): each particle's velocity against its neighbours' linear fit,
@@ -119,6 +120,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         self.wall_mass = self.rho0 * self.lattice_volume
         # kinematic wall condition: each wall particle knows the face it lies behind (permuted with it)
         self.init_kinematic_walls(arrays)
+        self.init_wall_motion(arrays)
         # an unknown pressed into a wall takes its row's Neumann value there at least (the faces come with the kinematic
         # condition; extrapolated walls are unknowns of the PPE, their pressure is the solve's)
         self.pressed_walls = self.kinematic_walls and not self.extrapolated_walls
@@ -290,8 +292,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         exact for a linear pressure; K the fluid rows' Shao & Lo weight, so that the system stays symmetric)."""
         P = self.particles
         E = self.ppe
-        row = ti.Struct(vol_a=P.mass[a] / self.rho0, body=self.body_force(P.x[a]), k=0, diag=0.0, diag_dirichlet=0.0,
-                        rhs=0.0)
+        row = ti.Struct(vol_a=P.mass[a] / self.rho0, body=self.body_force(P.x[a]) - self.wall_acceleration(a), k=0,
+                        diag=0.0, diag_dirichlet=0.0, rhs=0.0)
         self.nsearch.for_each_neighbor(a, P.x, self.ppe_wall_row_pair, row)
         E.diag[a] = row.diag  # (> 0: `wet_wall_row` let it in)
         E.diag_dirichlet[a] = row.diag_dirichlet
@@ -320,7 +322,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
     def wall_extrapolation(self, a):
         """Wall particle a's sums over its fluid neighbours f: (sum_f K_af, sum_f K_af (p_f + rho0 (g - a_w) . r_af))."""
         P = self.particles
-        row = ti.Struct(vol_a=P.mass[a] / self.rho0, diag=0.0, p_sum=0.0, body=self.body_force(P.x[a]))
+        row = ti.Struct(vol_a=P.mass[a] / self.rho0, diag=0.0, p_sum=0.0,
+                        body=self.body_force(P.x[a]) - self.wall_acceleration(a))
         self.nsearch.for_each_neighbor(a, P.x, self.wall_extrapolation_pair, row)
         return row.diag, row.p_sum
 
@@ -370,15 +373,17 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         c_ab = 0.0
         v_b = P.v[b]
         if P.kind[b] == WALL:
-            v_b += row.dt * row.body
+            # v*_w: the velocity the correction's Neumann difference takes back to the wall's own, v_w + dt (g - a_w)
+            # (v_w at the step's end for a moving wall; a wall at rest: v_w + dt g)
+            v_b += row.dt * (row.body - self.wall_acceleration(b))
             wall_unknown = False
             if ti.static(self.extrapolated_walls):
                 wall_unknown = E.role[b] == UNKNOWN  # a wall with a row of its own (`wet_wall_row`)
             if wall_unknown:
                 c_ab = k_ab
                 row.diag += k_ab
-            else:
-                row.rhs -= k_ab * hydrostatic_pressure_difference(self.rho0, row.body, r_ab)
+            else:  # the Neumann difference of a wall accelerating at a_w: rho0 (g - a_w) . r_ab
+                row.rhs -= k_ab * hydrostatic_pressure_difference(self.rho0, row.body - self.wall_acceleration(b), r_ab)
         elif E.role[b] == UNKNOWN:
             c_ab = k_ab
             row.diag += k_ab
@@ -488,7 +493,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         if ti.static(self.pressed_walls):
             if P.kind[b] == WALL and self.ppe.role[a] == UNKNOWN:
                 if self.face_distance(P.x[a], b) < PRESSED_DISTANCE * self.dx:  # (body force: only here, rare)
-                    body = self.body_force(P.x[a])
+                    body = self.body_force(P.x[a]) - self.wall_acceleration(b)
                     p_normal = pressed_wall_pressure(p_b, sums.p_a,
                                                      hydrostatic_pressure_difference(self.rho0, body, r_ab))
         wetted = P.kind[b] == FLUID or p_normal > self.p_background
@@ -506,6 +511,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
 
     # -- one step -------------------------------------------------------------------------------------
     def prepare(self) -> None:
+        if self.wall_motion:
+            self.place_walls(self.t, self.t)
         self.rebuild_neighbors()
         self.detect_free_surface()
         self.find_confinement()
@@ -553,6 +560,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         dt = min(dt_free, self.dt_cap)
         if self.midpoint:
             self.first_half_drift(dt)
+        if self.wall_motion:  # at the step's force time, moving at the step's end (place_walls_on_clock)
+            self.place_walls(self.t + (0.5 * dt if self.midpoint else 0.0), self.t + dt)
         if self.rebuilds_at(self.step_count):
             self.rebuild_neighbors()
             if self.strained_depth:
@@ -566,6 +575,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         if self.features.walls:
             self.solved_wall_pressure()
         self.correct_and_move(dt)
+        if self.wall_motion:  # the step's end state
+            self.place_walls(self.t + dt, self.t + dt)
         if self.shifting is not None:
             self.shifting.compute(dt, s["max_speed"])
             if self.continuity:
@@ -580,8 +591,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         """`ppe` (iterations, residuals, settings), `ppe_warnings`, the kinematic wall condition's count and
         `step_loop` (device: dt and t on the device, solvers/isph_loop.py; host: dt from a stats read-back) and
         `ppe_budget_stalls` (device: solves of a batch of steps that used up their iteration budget)."""
-        return {**ppe_summary(self), **self.kinematic_walls_summary(), "step_loop": self.step_loop,
-                "ppe_budget_stalls": self.ppe_budget_stalls}
+        return {**ppe_summary(self), **self.kinematic_walls_summary(), **self.wall_motion_summary(),
+                "step_loop": self.step_loop, "ppe_budget_stalls": self.ppe_budget_stalls}
 
     def extra_timeseries(self) -> dict:
         """Iterations and relative residual of the last PPE solve."""

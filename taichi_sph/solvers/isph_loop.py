@@ -331,6 +331,8 @@ class ISPHDeviceLoop:
             self.open_batch_step(i if first else i + 1, int(rebuild))
             if self.midpoint:
                 self.first_half_drift_on_clock()
+            if self.wall_motion:
+                self.place_walls_on_clock(0.5 if self.midpoint else 0.0)
             if rebuild:
                 self.rebuild_on_gate()
                 self.detect_free_surface()
@@ -407,6 +409,8 @@ class ISPHDeviceLoop:
         if self.features.walls:
             self.solved_wall_pressure()
         self.correct_and_move_on_clock()
+        if self.wall_motion:  # the step's end state (the clock is at its end now)
+            self.place_walls_at_clock_time()
         if self.shifting is not None:
             self.shift_on_clock()
             if self.continuity:
@@ -419,6 +423,8 @@ class ISPHDeviceLoop:
         self.open_device_step()
         if self.midpoint:
             self.first_half_drift_on_clock()
+        if self.wall_motion:  # at the step's force time
+            self.place_walls_on_clock(0.5 if self.midpoint else 0.0)
         if self.rebuilds_at(self.step_count):
             self.rebuild_neighbors()
             self.detect_free_surface()

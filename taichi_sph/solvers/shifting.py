@@ -179,7 +179,8 @@ class ParticleShifting:
                     if length > self.max_shift:
                         dr *= self.max_shift / length
                     if ti.static(getattr(S, "kinematic_walls", False)):
-                        dr, _ = S.kinematic_wall_cut(a, dr, 1.0)  # a shift keeps the wall clearance as a step does
+                        # a shift keeps the wall clearance as a step does (the faces do not move during it)
+                        dr, _ = S.kinematic_wall_cut(a, dr, 1.0, False)
                     self.shift[a] = dr
                     if ti.static(self.taylor):
                         y = renormalised_displacement(sums.moment, dr)

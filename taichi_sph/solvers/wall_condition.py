@@ -61,11 +61,13 @@ class KinematicWalls:
         return out
 
     @ti.func
-    def kinematic_wall_cut(self, a, v, dt):
+    def kinematic_wall_cut(self, a, v, dt, faces_move: ti.template() = True):
         """v of fluid particle a after the kinematic condition of each wall neighbour's face (only faces
-        it is on the fluid side of, or at most dx/2 past); returns (v, 1 if some face cut it)."""
+        it is on the fluid side of, or at most dx/2 past); returns (v, 1 if some face cut it). `faces_move`:
+        the faces move on at their own speed while v acts (a step's velocity); False for a displacement within
+        the step, with the walls where they are (the shift: v = its displacement, dt = 1)."""
         P = self.particles
-        state = ti.Struct(xa=P.x[a], v=v, cut=0, dt=dt)
+        state = ti.Struct(xa=P.x[a], v=v, cut=0, dt=dt, face_speed=1.0 if ti.static(faces_move) else 0.0)
         self.nsearch.for_each_neighbor(a, P.x, self.kinematic_wall_pair, state)
         return state.v, state.cut
 
@@ -81,7 +83,7 @@ class KinematicWalls:
             distance = self.face_distance(state.xa, b)
             if distance > -0.5 * self.dx:
                 w, c = kinematic_wall_condition(state.v, self.wall_normal[b], distance, self.wall_clearance,
-                                                state.dt)
+                                                state.dt, state.face_speed * self.face_speed(b))
                 state.v = w
                 state.cut = ti.max(state.cut, c)
 

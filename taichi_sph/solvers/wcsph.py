@@ -89,6 +89,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         self.schedule = LoopSchedule()
         self.init_device_loop(cfg, self.shifting.max_shift if self.shifting is not None else 0.0)
         self.init_kinematic_walls(arrays)
+        self.init_wall_motion(arrays)
         # fluid particles with a wall neighbour (set by the force pass, read by the next drift: same order)
         self.near_wall = P.add_scalar(dtype=ti.i32) if self.kinematic_walls else None
         # the transport velocity (Adami et al. 2013): a_b is set by the force pass and read by the next drift (same
@@ -451,6 +452,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
             self.drift_pass(dt_kick, dt, False, serial)
         else:
             self.drift_pass(dt_kick, dt, True, serial)
+        self.move_walls_pass(serial)
         if ti.static(self.features.shifting and self.features.integrator != "leapfrog"):
             self.shifting.flag_surface_pass(serial)
             self.shifting.compute_pass(dt, self.stats[0], serial)
@@ -475,6 +477,8 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         and not as the probe steps' time."""
         self.tait_equation_of_state()
         self.update_body_force(self.t)
+        if self.wall_motion:
+            self.place_walls(self.t, self.t)
         self.rebuild_neighbors()
         self.binding = self.nsearch.binding(self.particles.x, self.particles.persistent_fields)
         if self.binding.other:
@@ -505,4 +509,4 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         """Which loop schedule the step ran with (decided by timing on the CPU); the wall condition's count."""
         serial = self.schedule.serial
         return {"loop_schedule": "undecided" if serial is None else ("serial" if serial else "parallel"),
-                **self.kinematic_walls_summary()}
+                **self.kinematic_walls_summary(), **self.wall_motion_summary()}

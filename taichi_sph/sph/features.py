@@ -19,6 +19,7 @@ class Features:
     wide: str                     # the clock's and the PPE stopping test's float: f64, or f32 without 64-bit floats
     walls: bool
     moving_walls: bool
+    wall_motion: bool             # a wall body with a prescribed oscillation (solvers/wall_motion.py)
     no_slip: bool
     ghost_velocity: bool          # Adami's no-slip wall velocity: the laminar viscosity's at a no-slip wall
     free_slip_normal_viscosity: bool  # the artificial viscosity's wall pairs along the face normal only
@@ -66,6 +67,7 @@ class Features:
             wide=wide,
             walls=walls,
             moving_walls=walls and moving,
+            wall_motion=walls and bool(cfg.wall_motions),
             no_slip=walls and cfg.walls.slip == "no_slip",
             ghost_velocity=walls and cfg.walls.slip == "no_slip" and cfg.fluid.nu > 0.0,
             free_slip_normal_viscosity=(artificial and walls and cfg.walls.slip == "free_slip"
@@ -129,6 +131,8 @@ class Features:
         if self.walls:
             terms.append("adami_walls:" + ("no_slip" if self.no_slip else "free_slip")
                          + (":normal_artificial_viscosity" if self.free_slip_normal_viscosity else ""))
+        if self.wall_motion:
+            terms.append("oscillating_walls")
         if any(self.periodic):
             terms.append("periodic:" + "".join("xyz"[a] for a, p in enumerate(self.periodic) if p))
         if self.reflecting:

@@ -417,3 +417,23 @@ def rotating_square_inertia_curvature(side: float, omega: float) -> float:
     X, Y = np.meshgrid(s, s)
     mean_phi = float(square_poisson(X, Y, side).mean())
     return omega * omega * side * side / 3.0 + 8.0 * omega * omega * mean_phi
+
+
+def wave_number(omega: float, depth: float, g: float = 9.81) -> float:
+    """k of linear gravity waves of frequency omega over depth d: omega^2 = g k tanh(k d) (fixed-point iteration
+    k = omega^2 / (g tanh(k d)) from the deep-water value, which converges for every k d)."""
+    k = omega * omega / g
+    for _ in range(200):
+        k_next = omega * omega / (g * math.tanh(k * depth))
+        if abs(k_next - k) < 1e-14 * k_next:
+            return k_next
+        k = k_next
+    return k
+
+
+def piston_wave_height(stroke: float, period: float, depth: float, g: float = 9.81) -> float:
+    """Wave height H a piston wave maker of stroke S (twice its amplitude) makes far from it, by linear theory
+    (Biesel & Suquet 1951; Dean & Dalrymple 1991, eq. 6.23): H / S = 2 (cosh 2kd - 1) / (sinh 2kd + 2kd)."""
+    k = wave_number(2.0 * math.pi / period, depth, g)
+    kd2 = 2.0 * k * depth
+    return stroke * 2.0 * (math.cosh(kd2) - 1.0) / (math.sinh(kd2) + kd2)
