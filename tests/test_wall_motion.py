@@ -19,13 +19,13 @@ from taichi_sph.validation.reference import piston_wave_height
 G = 9.81
 
 
-def _flume(dx: float, t_end: float, solver: str = "wcsph", **motion) -> dict:
-    """A 6 m flume of water 0.5 m deep with a piston wall_block at its left end (amplitude 2 cm, period 1.2 s):
-    physical keys only."""
+def _flume(dx: float, t_end: float, solver: str = "wcsph", length: float = 6.0, **motion) -> dict:
+    """A flume (6 m: configs/wave_flume_2d.yaml) of water 0.5 m deep with a piston wall_block at its left end
+    (amplitude 2 cm, period 1.2 s): physical keys only."""
     return {"name": "flume", "dim": 2, "solver": solver, "gravity": [0.0, -G],
-            "domain": {"lo": [-0.3, -0.2], "hi": [6.2, 1.0]}, "particles": {"dx": dx},
-            "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [6.0, 0.5], "hydrostatic": True},
-                       {"type": "wall_box", "lo": [-0.1, 0.0], "hi": [6.0, 0.8], "open_top": True},
+            "domain": {"lo": [-0.3, -0.2], "hi": [length + 0.2, 1.0]}, "particles": {"dx": dx},
+            "bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [length, 0.5], "hydrostatic": True},
+                       {"type": "wall_box", "lo": [-0.1, 0.0], "hi": [length, 0.8], "open_top": True},
                        {"type": "wall_block", "lo": [-0.1, 0.0], "hi": [0.0, 0.8],
                         "motion": {"amplitude": [0.02, 0.0], "period": 1.2, **motion}}],
             "fluid": {"nu": 1.0e-6}, "time": {"t_end": t_end}}
@@ -90,7 +90,7 @@ def test_a_motion_the_walls_cannot_follow_is_refused_naming_its_key(change, key)
 def test_the_moving_walls_particles_follow_the_motion_and_hold_the_fluid_behind_their_face(solver):
     """After 1.5 s (past the ramp) every piston particle is at x_0 + d(t) and moves at d'(t), the tank's other walls
     have not moved, and no fluid particle is behind the piston's face."""
-    cfg = config_from_dict(_flume(0.05, 1.5, solver))
+    cfg = config_from_dict(_flume(0.05, 1.5, solver, length=2.0))
     arrays = build_particles(cfg)
     solver = _run_to(cfg, 1.5)
     state = solver.host_state()
@@ -177,7 +177,7 @@ def test_a_shaken_closed_box_accelerates_its_fluid_with_a_pressure_gradient_of_r
         wall = ~fluid & (np.abs(x + 0.01) < 0.005) & (y > 0.0) & (y < 0.3)  # the left wall's first layer
         samples.append((solver.t, p[left].mean() - p[right].mean(), p[wall].mean() - p[left].mean()))
 
-    _run_to(cfg, 1.5, record, every=0.01)
+    _run_to(cfg, 1.5, record, every=0.02)
     t, dp, dp_wall = np.array(samples).T
     late = t >= 0.5 - 1e-9
     a_w = -amplitude * omega ** 2 * np.sin(omega * t[late])
@@ -203,7 +203,7 @@ def test_a_rewound_moving_wall_run_repeats_itself_bit_for_bit():
     moment (run/rewind.py, the same state a checkpoint holds) repeats its steps exactly."""
     from taichi_sph.run.rewind import SolverMemento
 
-    cfg = config_from_dict(_flume(0.05, 1.0))
+    cfg = config_from_dict(_flume(0.05, 1.0, length=2.0))
     solver = _run_to(cfg, 0.5)
     memento = SolverMemento(solver)
     for _ in range(200):
