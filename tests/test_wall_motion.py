@@ -127,8 +127,9 @@ def test_a_piston_makes_the_wave_height_of_biesels_transfer_function(solver):
     20 particles over the depth (configs/wave_flume_2d.yaml). The elevation 1 to 3 m from the piston (2-6 depths: the
     evanescent modes gone) every 0.5 m, its first harmonic fitted over the two periods from t = 4.8 s (the steady
     train has passed them: group speed 1.10 m/s after the 1.2 s ramp) to 7.2 s (before the far wall's reflection is
-    back). Their mean within 5%, each within 12%: the heights vary along the flume with a wavelength of ~1 m, by
-    +-8% (WCSPH) and +-4% (ISPH) at this resolution, +-4% for ISPH at twice it (docs/notes/wave_maker.md)."""
+    back). Their mean within 8%, each within 15%: the heights vary along the flume with a wavelength of ~1 m, by
+    +-8% (WCSPH) and +-4% (ISPH) at this resolution, +-4% at twice it, and WCSPH's mean from run to run (its loop
+    schedule is chosen by timing): -2.4% and -5.3% in two runs; ISPH +1.6% (docs/notes/wave_maker.md)."""
     cfg = config_from_dict(_flume(0.025, 7.2, solver))
     probes = (1.0, 1.5, 2.0, 2.5, 3.0)
     series = []
@@ -144,8 +145,8 @@ def test_a_piston_makes_the_wave_height_of_biesels_transfer_function(solver):
     expected = piston_wave_height(0.04, 1.2, 0.5)
     assert expected == pytest.approx(0.0567, abs=1e-4)
     heights = [first_harmonic_height(t, eta, 1.2, 4.8, 7.2) for eta in etas]
-    assert np.mean(heights) == pytest.approx(expected, rel=0.05)
-    assert heights == pytest.approx([expected] * len(probes), rel=0.12)
+    assert np.mean(heights) == pytest.approx(expected, rel=0.08)
+    assert heights == pytest.approx([expected] * len(probes), rel=0.15)
 
 
 @pytest.mark.parametrize("solver", ["wcsph", "isph"])
