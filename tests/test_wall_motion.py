@@ -75,10 +75,11 @@ def test_oscillating_wall_velocity_and_acceleration_are_the_displacements_deriva
     (lambda c: c["bodies"][2]["motion"].update(amplitude=[0.5, 0.0]), "bodies[2].motion"),
     (lambda c: c["bodies"][2].update(velocity=[0.1, 0.0]), "bodies[2].velocity"),
     (lambda c: c["bodies"][2]["motion"].update(ramp=-1.0), "bodies[2].motion.ramp"),
+    (lambda c: c.update(solver="isph", isph={"frame": "eulerian"}), "bodies[2].motion"),
 ])
 def test_a_motion_the_walls_cannot_follow_is_refused_naming_its_key(change, key):
     """On a fluid body, with the wrong number of amplitudes, out of the domain at its largest displacement, beside a
-    velocity, with a negative ramp: a ConfigError naming the key."""
+    velocity, with a negative ramp, in ISPH's Eulerian frame: a ConfigError naming the key."""
     cfg = _flume(0.05, 1.0)
     change(cfg)
     with pytest.raises(ConfigError) as e:

@@ -165,8 +165,8 @@ def validate(cfg: Config, source: str) -> None:
 
 def _check_wall_motions(cfg: Config, source: str) -> None:
     """A prescribed oscillation (`motion`): on a wall body only, with dim amplitudes, no `velocity` beside it (the
-    motion sets the velocity), not across a periodic axis (a face there does not exist), and inside the domain at
-    its largest displacement."""
+    motion sets the velocity), not across a periodic axis (a face there does not exist), inside the domain at its
+    largest displacement, and not in ISPH's Eulerian frame (its fluid particles stay where they start)."""
     eps = 1e-9 * max(cfg.domain.hi[a] - cfg.domain.lo[a] for a in range(cfg.dim))
     for i, b in enumerate(cfg.bodies):
         if b.motion is None:
@@ -186,6 +186,9 @@ def _check_wall_motions(cfg: Config, source: str) -> None:
             if cfg.periodic[a] and m.amplitude[a] != 0.0:
                 raise ConfigError(f"the motion's amplitude along the periodic axis {'xyz'[a]} moves no face; set it to 0",
                                   source=source, key=f"{key}.amplitude")
+        if cfg.solver == "isph" and cfg.isph.frame == "eulerian":
+            raise ConfigError("isph.frame: eulerian keeps every fluid particle where it starts, so a moving wall would "
+                              "run into them; use isph.frame: lagrangian (the default)", source=source, key=key)
         lo, hi = cfg.wall_box_extent(b) if b.type == "wall_box" else (b.lo, b.hi)
         if any(lo[a] - abs(m.amplitude[a]) < cfg.domain.lo[a] - eps or hi[a] + abs(m.amplitude[a]) > cfg.domain.hi[a] + eps
                for a in range(cfg.dim) if not cfg.periodic[a]):
