@@ -209,3 +209,29 @@ def test_a_gain_under_the_bound_is_warned_about():
     loop.energy_peak = 1.04 * e0
     assert watch.gain_below_bound(loop) is None
     assert unguarded_warning("dam_break_2d.yaml", 1.08, EnergyWatch.gain_below_bound) is None
+
+
+def test_an_oscillating_walls_work_is_taken_out_of_the_energy_the_guard_judges():
+    """WCSPH measures the work W its moving walls' pair forces do (solvers/wall_motion.py): the guard then judges
+    E - E_rest - W and is on (ISPH measures none: off, as for a lid). A piston that has put 30 J into the fluid
+    leaves the balance where it was; the same 30 J with no work behind it trips the guard. The rest state's container
+    is the flume's water side of the piston (validation/energy.py `_lined_sides`): the flume at rest is at rest."""
+    cfg = load_config(CONFIGS / "wave_flume_2d.yaml")
+    a = build_particles(cfg)
+    f = a.kind == FLUID
+    state = {"x": a.x, "v": a.v, "rho": a.rho, "mass": a.mass, "kind": a.kind}
+    watch = EnergyWatch(cfg, a.mass[f], wall_work_measured=True)
+    loop = LoopState()
+    start = watch.measure(state, loop, 0.0, 0.0)
+    assert abs(start["energy_above_rest"]) < 1e-3 * watch.floor and watch.summary(loop)["guard"] == "on"
+    lifted = dict(state, x=state["x"] + np.where(f[:, None], [0.0, 30.0 / (9.81 * a.mass[f].sum())], 0.0))
+    row = watch.measure(lifted, loop, 0.0, 30.0)  # 30 J of potential energy, all of it the walls' work
+    assert row["energy_above_rest"] == pytest.approx(30.0, rel=1e-3)
+    assert loop.energy_last == pytest.approx(0.0, abs=0.03) and watch.violation(loop) is None
+    watch.measure(lifted, loop, 0.0, 0.0)  # the same energy, no work done
+    assert watch.violation(loop)["criterion"] == "energy_growth"
+    assert "less the moving walls' work" in watch.violation(loop)["detail"]
+    assert watch.summary(loop)["less_wall_work"] is True
+    unmeasured = EnergyWatch(cfg, a.mass[f])
+    assert unmeasured.summary(LoopState())["guard"] == "off: moving walls"
+    assert energy_input(cfg) == "moving walls" and energy_input(cfg, wall_work_measured=True) is None

@@ -682,8 +682,13 @@ class Config:
     @property
     def moving_walls(self) -> bool:
         """A wall body with a nonzero (or expression) velocity, or a prescribed motion."""
+        return self.sliding_walls or bool(self.wall_motions)
+
+    @property
+    def sliding_walls(self) -> bool:
+        """A wall body with a nonzero (or expression) velocity: its surface slides along its faces (a lid)."""
         return any(b.type.startswith("wall") and b.velocity is not None and any(c != 0 for c in b.velocity)
-                   for b in self.bodies) or bool(self.wall_motions)
+                   for b in self.bodies)
 
     @property
     def wall_motions(self) -> tuple[tuple[int, "Motion"], ...]:

@@ -4,7 +4,8 @@ row, its start, peak and last value kept in the loop state, and the growth that 
     E(t) - E_rest > (1 + growth) (E(0) - E_rest) + floor,
 floor = energy_floor (the body forces' work over 3e-3 dx for WCSPH, or over (dx / H)^2 dx if larger, H the settled
 depth; over 1e-3 dx for ISPH; and a millionth of the kinetic energy at the scene's speed). A closed flow only loses
-energy to viscosity, diffusion and impacts; a gain is the scheme's.
+energy to viscosity, diffusion and impacts; a gain is the scheme's. Where walls oscillate as prescribed and the
+solver measures their work W (WCSPH: solvers/wall_motion.py), the energy judged is E - E_rest - W.
 
 E - E_rest is taken no smaller than the kinetic energy E_k: the true rest state is the minimum of E_p + E_e, so
 E_k <= E - E_rest always. The estimated rest state can sit above that minimum (WCSPH's compressed column sits
@@ -32,31 +33,40 @@ ENERGY_COLUMNS = ["potential_energy", "elastic_energy", "energy_above_rest"]
 class EnergyWatch:
     """Measures E - E_rest on host states and judges its growth (module docstring)."""
 
-    def __init__(self, cfg: Config, fluid_mass: np.ndarray, released: float = 0.0) -> None:
+    def __init__(self, cfg: Config, fluid_mass: np.ndarray, released: float = 0.0,
+                 wall_work_measured: bool = False) -> None:
         self.cfg = cfg
         self.rest = rest_state(cfg, fluid_mass, released)
         self.floor = energy_floor(cfg, float(np.sum(fluid_mass, dtype=np.float64)), self.rest.depth)
-        self.input = energy_input(cfg)
+        # oscillating walls whose work W the solver measures (WCSPH's pair forces): the energy judged is E - E_rest - W
+        self.wall_work_measured = wall_work_measured and bool(cfg.wall_motions)
+        self.input = energy_input(cfg, self.wall_work_measured)
 
     @property
     def guarded(self) -> bool:
         return self.cfg.guards.energy_growth is not None and self.input is None
 
-    def measure(self, state: dict, loop: LoopState, kinetic: float) -> dict:
+    def measure(self, state: dict, loop: LoopState, kinetic: float, wall_work: float | None = None) -> dict:
         """The timeseries columns of this state (`kinetic`: its fluid's E_k); the loop's start/peak/last energies
-        updated."""
+        updated: E - E_rest, less the moving walls' work W since t = 0 where it is measured (`wall_work`)."""
         f = state["kind"] == FLUID
         m = state["mass"][f]
         potential = potential_energy(self.cfg, state["x"][f], m)
         elastic = elastic_energy(self.cfg, state["rho"][f], m)
-        above = max(kinetic + potential + elastic - self.rest.potential - self.rest.elastic, kinetic)
+        raw = kinetic + potential + elastic - self.rest.potential - self.rest.elastic
+        above = max(raw, kinetic)
+        judged = above
+        if self.wall_work_measured and wall_work is not None:
+            # a piston drawn back lets the fluid below the rest state of the container at rest: E - E_rest < E_k is
+            # then real, and W holds its counterpart, so the balance takes E - E_rest as it is
+            judged = raw - wall_work
         if loop.energy_start is None:
-            loop.energy_start = loop.energy_peak = above
-        if not np.isfinite(above):
+            loop.energy_start = loop.energy_peak = judged
+        if not np.isfinite(judged):
             loop.energy_peak = float("inf")
         else:
-            loop.energy_peak = max(loop.energy_peak, above)
-        loop.energy_last = above
+            loop.energy_peak = max(loop.energy_peak, judged)
+        loop.energy_last = judged
         return {"potential_energy": potential, "elastic_energy": elastic, "energy_above_rest": above}
 
     def violation(self, loop: LoopState) -> dict | None:
@@ -67,8 +77,10 @@ class EnergyWatch:
         bound = (1.0 + growth) * max(loop.energy_start, 0.0) + self.floor
         if np.isfinite(loop.energy_last) and loop.energy_last <= bound:
             return None
-        detail = (f"energy above rest {loop.energy_last:.4g} J > {bound:.4g} J = (1 + guards.energy_growth "
-                  f"{growth:g}) x its start {loop.energy_start:.4g} J + floor {self.floor:.3g} J, with no energy input")
+        what = "energy above rest less the moving walls' work" if self.wall_work_measured else "energy above rest"
+        detail = (f"{what} {loop.energy_last:.4g} J > {bound:.4g} J = (1 + guards.energy_growth "
+                  f"{growth:g}) x its start {loop.energy_start:.4g} J + floor {self.floor:.3g} J, with no other "
+                  f"energy input")
         if loop.energy_start < self.floor and loop.energy_last < SETTLING_HINT * self.floor:
             # a start at rest whose settling swings past the floor (a coarse tank: docs/notes/user_scenes.md)
             detail += (". A fluid that starts at rest swings as its start settles, more at a coarse resolution: if "
@@ -126,6 +138,7 @@ class EnergyWatch:
             "drift": (last - start) / scale if scale else None,
             "growth": (peak - start) / scale if scale else None,
             "rest_potential": self.rest.potential, "rest_elastic": self.rest.elastic, "floor": self.floor,
+            **({"less_wall_work": True} if self.wall_work_measured else {}),
             "guard": "on" if self.guarded else
                      f"off: {self.input}" if self.input else "off: guards.energy_growth is null",
         }

@@ -122,7 +122,8 @@ class Simulation:
         self.released = arrays.released if resume is None else float(resume.meta.get("released", 0.0))
         for m in self.metrics:
             m.released = self.released
-        self.energy = EnergyWatch(cfg, arrays.mass[arrays.kind == FLUID], self.released)
+        self.energy = EnergyWatch(cfg, arrays.mass[arrays.kind == FLUID], self.released,
+                                  wall_work_measured=solver.wall_work_done() is not None)
         self.order_probe = OrderProbe(solver)
         # a checkpoint written before the particle-order diagnostics has no log: start one
         self.order_log = ParticleOrderLog(**(resume.meta.get("particle_order") or {}) if resume is not None else {})
@@ -262,7 +263,7 @@ class Simulation:
         f = state["kind"] == FLUID
         kinetic = diag.kinetic_energy(state["v"][f], state["mass"][f])
         row = {"t": solver.t, "step": solver.step_count, "dt": dt, "kinetic_energy": kinetic,
-               **self.energy.measure(state, self.loop, kinetic),
+               **self.energy.measure(state, self.loop, kinetic, solver.wall_work_done()),
                "max_speed": diag.max_speed(state["v"][f]),
                "max_density_error": diag.max_density_error(state["rho"][f], cfg.fluid.rho0)}
         probes = {p.name: probe_value(state, p.position, p.quantity, solver.support, solver.kernel.w_np)

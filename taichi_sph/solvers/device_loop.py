@@ -92,6 +92,7 @@ class DeviceResidentLoop:
             rebuild = 0
             if C.open_step(i):
                 dt = C.set_dt(self.dt_rule())
+                self.add_wall_work(dt)
                 self.ramped_gravity(C.time_after_step())
                 if ti.static(self.wall_motion):  # the walls move with the drift, to the state the forces are of
                     self.wall_time[None] = C.time_after_step()

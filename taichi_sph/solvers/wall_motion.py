@@ -28,6 +28,9 @@ class WallMotion:
         self.wall_motion = bool(motions)
         self.motions = tuple((tuple(float(a) for a in m.amplitude), 2.0 * math.pi / m.period,
                               float(m.period if m.ramp == AUTO else m.ramp)) for _, m in motions)
+        # WCSPH: the power the moving walls' pair forces put into the fluid at the last force pass, sum_a m_a
+        # sum_(b moving) a_ab . v_b, and its integral over the run, the work W (f64 where the clock is)
+        self.measures_wall_work = self.wall_motion and self.features.solver == "wcsph"
         if not self.wall_motion:
             return
         P = self.particles
@@ -38,6 +41,9 @@ class WallMotion:
         self.wall_mover.from_numpy(mover)
         self.wall_origin = P.add_vector(persistent=True)
         self.wall_origin.from_numpy(arrays.x.astype(np_float()))
+        if self.measures_wall_work:
+            self.wall_power = ti.field(float, shape=())
+            self.wall_work = ti.field(self.clock.t.dtype, shape=())
         self.wall_time = ti.field(float, shape=())  # the time the moving walls stand at
         self.wall_velocity_time = ti.field(float, shape=())  # the time their velocity is taken at (ISPH: the step's end)
         if self.kinematic_walls:  # each face's offset at d = 0 (wall_offset is the current one)
@@ -134,6 +140,35 @@ class WallMotion:
             if self.wall_mover[b] >= 0:
                 speed = self.particles.v[b].dot(self.wall_normal[b])
         return speed
+
+    @ti.func
+    def is_moving_wall(self, b):
+        """1 for a particle of a body with a prescribed motion (0 in a scene without one: compiled out)."""
+        moving = False
+        if ti.static(self.wall_motion):
+            moving = self.wall_mover[b] >= 0
+        return moving
+
+    @ti.func
+    def reset_wall_power(self):
+        """(WCSPH, before a force pass that runs) the walls' power back to 0."""
+        if ti.static(self.measures_wall_work):
+            ti.loop_config(serialize=True)
+            for _ in range(self.clock.live[None]):
+                self.wall_power[None] = 0.0
+
+    @ti.func
+    def add_wall_work(self, dt):
+        """(WCSPH, in the step's serial opening) W += P dt: the last force pass's power over the step its forces
+        drive (symplectic Euler's kick)."""
+        if ti.static(self.measures_wall_work):
+            self.wall_work[None] += ti.cast(self.wall_power[None], self.wall_work.dtype) * dt
+
+    def wall_work_done(self) -> float | None:
+        """W, the work the moving walls have done on the fluid since t = 0 [J]; None where it is not measured."""
+        if not self.measures_wall_work:
+            return None
+        return float(self.wall_work[None])
 
     def wall_motion_summary(self) -> dict:
         """summary.json `wall_motion`: each moving body's amplitude, period and ramp."""

@@ -113,6 +113,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
     def rates_passes(self, serial: ti.template()):
         """(summation density + Tait EOS), Adami walls, forces + delta-SPH + stats, in order."""
         self.reset_stats_live()
+        self.reset_wall_power()
         if ti.static(self.features.density == "summation"):
             self.summation_density_pass(serial)
             self.tait_pass(serial)
@@ -214,7 +215,8 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                                      sum_dp=ti.Vector.zero(float, self.dim), visc=ti.Vector.zero(float, self.dim),
                                      lap_m=0.0, alpha_a=self.alpha, compression=0.0,
                                      moment=ti.Matrix.zero(float, self.dim, self.dim),
-                                     acc_b=ti.Vector.zero(float, self.dim), dv_a=ti.Vector.zero(float, self.dim))
+                                     acc_b=ti.Vector.zero(float, self.dim), dv_a=ti.Vector.zero(float, self.dim),
+                                     wall_power=0.0)
                     if ti.static(self.transport):
                         sums.dv_a = self.transport_dv[a]
                     if ti.static(self.features.viscosity_switch):
@@ -240,6 +242,8 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                         self.near_wall[a] = sums.near_wall
                     if ti.static(self.features.density_diffusion != "none"):
                         self.drho_diffusion[a] = sums.drho
+                    if ti.static(self.measures_wall_work):
+                        ti.atomic_add(self.wall_power[None], P.mass[a] * sums.wall_power)
                     self.accumulate_stats(a)
 
     @ti.func
@@ -256,6 +260,7 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         sums.near_wall = ti.max(sums.near_wall, ti.select(is_fluid_b, 0, 1))
         v_b = P.v[b]
         v_ab = sums.va - v_b
+        acc_before = sums.acc  # (a moving wall's power: this pair's share of acc, dotted with v_b)
         self.pressure_pair(a, b, m_b, rho_b, r_ab, grad_w, sums)
         if ti.static(self.transport):
             self.transport_pair(b, m_b, rho_b, v_b, is_fluid_b, grad_w, sums)
@@ -283,6 +288,9 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
                     sums.lap_m += laplacian_moment_term(m_b / rho_b, r_ab, r2, self.eta2, grad_w)
                 else:
                     sums.acc += self.visc_norm * visc
+        if ti.static(self.measures_wall_work):
+            if self.is_moving_wall(b):
+                sums.wall_power += (sums.acc - acc_before).dot(v_b)
 
     @ti.func
     def pressure_pair(self, a, b, m_b, rho_b, r_ab, grad_w, sums: ti.template()):
@@ -510,3 +518,8 @@ class WCSPHSolver(DeviceResidentLoop, SolverBase):
         serial = self.schedule.serial
         return {"loop_schedule": "undecided" if serial is None else ("serial" if serial else "parallel"),
                 **self.kinematic_walls_summary(), **self.wall_motion_summary()}
+
+    def extra_timeseries(self) -> dict:
+        """`wall_work`: the work the moving walls have done on the fluid (a scene with a prescribed motion)."""
+        work = self.wall_work_done()
+        return {} if work is None else {"wall_work": work}
