@@ -136,9 +136,8 @@ class WallMotion:
     def face_speed(self, b) -> float:
         """v_b . n_b: the normal speed of wall particle b's face (0 unless it moves as prescribed)."""
         speed = 0.0
-        if ti.static(self.wall_motion):
-            if self.wall_mover[b] >= 0:
-                speed = self.particles.v[b].dot(self.wall_normal[b])
+        if self.is_moving_wall(b):
+            speed = self.particles.v[b].dot(self.wall_normal[b])
         return speed
 
     @ti.func
@@ -174,6 +173,5 @@ class WallMotion:
         """summary.json `wall_motion`: each moving body's amplitude, period and ramp."""
         if not self.wall_motion:
             return {}
-        return {"wall_motion": [{"body": body, "amplitude_m": list(m.amplitude), "period_s": m.period,
-                                 "ramp_s": float(m.period if m.ramp == AUTO else m.ramp)}
-                                for body, m in self.cfg.wall_motions]}
+        return {"wall_motion": [{"body": body, "amplitude_m": list(m.amplitude), "period_s": m.period, "ramp_s": ramp}
+                                for (body, m), (_, _, ramp) in zip(self.cfg.wall_motions, self.motions)]}
