@@ -93,8 +93,8 @@ def test_a_motion_the_walls_cannot_follow_is_refused_naming_its_key(change, key)
 @pytest.mark.parametrize("solver", ["wcsph", "isph"])
 def test_the_moving_walls_particles_follow_the_motion_and_hold_the_fluid_behind_their_face(solver):
     """After 1.5 s (past the ramp) every piston particle is at x_0 + d(t) and moves at d'(t), the tank's other walls
-    have not moved, no fluid particle is behind the piston's face, and (WCSPH) the energy above rest less the
-    walls' work W is where it started."""
+    have not moved, no fluid particle is behind the piston's face, and the energy above rest less the walls' work W
+    is where it started."""
     cfg = config_from_dict(_flume(0.05, 1.5, solver, length=2.0))
     arrays = build_particles(cfg)
     solver = _run_to(cfg, 1.5)
@@ -112,19 +112,20 @@ def test_the_moving_walls_particles_follow_the_motion_and_hold_the_fluid_behind_
     assert np.allclose(state["x"][at_rest], origin[at_rest], atol=0.0)
     fluid = state["kind"] != WALL
     assert state["x"][fluid, 0].min() > d  # the face is at x = d
-    # WCSPH measures the walls' work W: the fluid's energy above rest less W is where it started (run/energy_watch.py)
+    # the walls' work W: the fluid's energy above rest less W is where it started (run/energy_watch.py)
     work = solver.wall_work_done()
-    assert (work is None) == (cfg.solver != "wcsph")
-    if work is not None:
+    if True:
         f0 = arrays.kind != WALL
-        watch = EnergyWatch(cfg, arrays.mass[f0], wall_work_measured=True)
-        loop = LoopState()
-        watch.measure({"x": arrays.x, "v": arrays.v, "rho": arrays.rho, "mass": arrays.mass, "kind": arrays.kind},
-                      loop, 0.0, 0.0)
-        row = watch.measure(state, loop, kinetic_energy(state["v"][fluid], state["mass"][fluid]), work)
-        # measured: E - E_rest 26.7 J (5.4 floors), W 25.2 J, the balance 1.6 J (0.32 of the floor)
-        assert row["energy_above_rest"] > 3.0 * watch.floor
-        assert abs(loop.energy_last - loop.energy_start) < 0.5 * watch.floor
+    watch = EnergyWatch(cfg, arrays.mass[f0], wall_work_measured=True)
+    loop = LoopState()
+    watch.measure({"x": arrays.x, "v": arrays.v, "rho": arrays.rho, "mass": arrays.mass, "kind": arrays.kind},
+                  loop, 0.0, 0.0)
+    row = watch.measure(state, loop, kinetic_energy(state["v"][fluid], state["mass"][fluid]), work)
+    # measured: E - E_rest 26.7 J (WCSPH, 5.4 floors) / 28.1 J (ISPH, 56 floors), W 25.2 / 26.6 J, the balance
+    # 1.6 / 1.5 J (6%: the piston's corner with the floor, run/energy_watch.py WALL_WORK_TOLERANCE)
+    assert row["energy_above_rest"] > 3.0 * watch.floor
+    assert abs(loop.energy_last - loop.energy_start) < 0.1 * abs(work)
+    assert watch.violation(loop) is None
 
 
 def first_harmonic_height(t: np.ndarray, eta: np.ndarray, period: float, t0: float, t1: float) -> float:

@@ -35,6 +35,7 @@ class LoopState:
     energy_start: float | None = None     # energy above the rest state at the first output row (energy_watch.py)
     energy_peak: float | None = None
     energy_last: float | None = None
+    wall_work_peak: float = 0.0           # the largest |W| of oscillating walls at an output row (energy_watch.py)
 
 
 @dataclass

@@ -171,10 +171,12 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         if ti.static(self.explicit_step_force):
             if self.live():  # (a step a batch skips: live 0, isph_loop.py)
                 self.explicit_acc[None] = 0.0  # (a serial task before the loop: no host write a step)
+        self.reset_wall_power()
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
                 xa = P.x[a]
-                sums = ti.Struct(va=P.v[a], acc=self.body_force(xa), alpha_a=self.alpha, compression=0.0)
+                sums = ti.Struct(va=P.v[a], acc=self.body_force(xa), alpha_a=self.alpha, compression=0.0,
+                                 wall_power=0.0)
                 if ti.static(self.features.viscosity_switch):
                     sums.alpha_a = self.av_alpha[a]
                 if ti.static(self.features.laminar_viscosity or self.features.artificial_viscosity):
@@ -186,6 +188,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                     else:
                         self.compression[a] = sums.compression
                 acc = sums.acc
+                if ti.static(self.measures_wall_work):
+                    ti.atomic_add(self.wall_power[None], P.mass[a] * sums.wall_power)
                 if ti.static(self.eulerian):
                     acc += eulerian_advection(self.grad_v[a], P.v[a])
                 P.acc[a] = acc
@@ -204,6 +208,7 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         grad_w = self.kernel.grad_w(r_ab, ti.sqrt(r2))
         is_fluid_b = P.kind[b] == FLUID
         v_ab = sums.va - P.v[b]  # a wall's own velocity (artificial viscosity: see artificial_viscosity_velocity)
+        acc_before = sums.acc  # (a moving wall's power: this pair's share of acc, dotted with v_b)
         if ti.static(self.features.artificial_viscosity):
             # on every pair, not approaching ones only (WCSPH's form): see the function
             if ti.static(self.features.viscosity_switch):
@@ -216,6 +221,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 v_visc = self.laminar_viscosity_velocity(sums.va, v_ab, b, is_fluid_b)
                 sums.acc += self.visc_norm * morris_laminar_viscosity(P.mass[b], self.nu, self.rho0, self.rho0, v_visc, r_ab, r2,
                                                      self.eta2, grad_w)
+        if ti.static(self.measures_wall_work):
+            if self.is_moving_wall(b):
+                sums.wall_power += (sums.acc - acc_before).dot(P.v[b])
 
     # -- 3. the linear system -----------------------------------------------------------------
     @ti.kernel
@@ -448,7 +456,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         for a in range(self.n):
             if self.live() and P.kind[a] == FLUID:
                 sums = ti.Struct(p_a=P.p[a], sum_dp=ti.Vector.zero(float, self.dim),
-                                 moment=ti.Matrix.zero(float, self.dim, self.dim))
+                                 moment=ti.Matrix.zero(float, self.dim, self.dim),
+                                 wall_power=0.0)
                 self.nsearch.for_each_neighbor(a, P.x, self.pressure_gradient_pair, sums)
                 sum_dp, moment = sums.sum_dp, sums.moment
                 grad_p = self.grad_norm * sum_dp
@@ -456,12 +465,15 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                     grad_p = moment.transpose().inverse() @ sum_dp
                 acc = -grad_p / self.rho0
                 P.acc[a] += acc
+                if ti.static(self.measures_wall_work):
+                    ti.atomic_add(self.wall_power[None], P.mass[a] * sums.wall_power)
                 v = P.v[a] + dt * acc
                 if ti.static(self.kinematic_walls):
                     v, cut = self.kinematic_wall_cut(a, v, dt)
                     if cut:
                         ti.atomic_add(self.wall_cuts[None], 1)
                 P.v[a] = v
+        self.add_step_wall_work(dt)
         if ti.static(self.continuity):
             self.continuity_density.deform_by_motion(dt)
         if ti.static(not self.eulerian):
@@ -496,6 +508,11 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                     body = self.body_force(P.x[a]) - self.wall_acceleration(b)
                     p_normal = pressed_wall_pressure(p_b, sums.p_a,
                                                      hydrostatic_pressure_difference(self.rho0, body, r_ab))
+        if ti.static(self.measures_wall_work):
+            if self.is_moving_wall(b):  # the wall's pressure force on a, as the symmetric (WCSPH) pair takes it
+                grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
+                f_ab = -(P.mass[b] / self.rho0 ** 2) * (sums.p_a + p_b - 2.0 * self.p_background) * grad_w
+                sums.wall_power += f_ab.dot(P.v[b])
         wetted = P.kind[b] == FLUID or p_normal > self.p_background
         if ti.static(self.wall_tension):
             wetted = True  # (a wall next to fluid is a PPE unknown; in a confined fluid it holds tension too)
@@ -595,6 +612,8 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
                 "step_loop": self.step_loop, "ppe_budget_stalls": self.ppe_budget_stalls}
 
     def extra_timeseries(self) -> dict:
-        """Iterations and relative residual of the last PPE solve."""
+        """Iterations and relative residual of the last PPE solve; `wall_work` (a scene with a prescribed motion)."""
+        work = self.wall_work_done()
         return {"ppe_iterations": self.iterations[-1] if self.iterations else 0,
-                "ppe_residual": self.residuals[-1] if self.residuals else 0.0}
+                "ppe_residual": self.residuals[-1] if self.residuals else 0.0,
+                **({} if work is None else {"wall_work": work})}

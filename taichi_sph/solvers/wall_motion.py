@@ -28,9 +28,10 @@ class WallMotion:
         self.wall_motion = bool(motions)
         self.motions = tuple((tuple(float(a) for a in m.amplitude), 2.0 * math.pi / m.period,
                               float(m.period if m.ramp == AUTO else m.ramp)) for _, m in motions)
-        # WCSPH: the power the moving walls' pair forces put into the fluid at the last force pass, sum_a m_a
-        # sum_(b moving) a_ab . v_b, and its integral over the run, the work W (f64 where the clock is)
-        self.measures_wall_work = self.wall_motion and self.features.solver == "wcsph"
+        # the power the moving walls' terms put into the fluid at the last force pass, sum_a m_a sum_(b moving)
+        # a_ab . v_b (ISPH: a_ab the wall's share of the predictor's viscosities and the corrected pressure
+        # gradient), and its integral over the run, the work W (f64 where the clock is)
+        self.measures_wall_work = self.wall_motion
         if not self.wall_motion:
             return
         P = self.particles
@@ -150,7 +151,7 @@ class WallMotion:
 
     @ti.func
     def reset_wall_power(self):
-        """(WCSPH, before a force pass that runs) the walls' power back to 0."""
+        """(before a force pass, or ISPH's predictor, that runs) the walls' power back to 0."""
         if ti.static(self.measures_wall_work):
             ti.loop_config(serialize=True)
             for _ in range(self.clock.live[None]):
@@ -162,6 +163,15 @@ class WallMotion:
         drive (symplectic Euler's kick)."""
         if ti.static(self.measures_wall_work):
             self.wall_work[None] += ti.cast(self.wall_power[None], self.wall_work.dtype) * dt
+
+    @ti.func
+    def add_step_wall_work(self, dt):
+        """(ISPH, after the correction of a step that runs) W += P dt: the step's power from its predictor and
+        correction over the dt they advance the velocity by."""
+        if ti.static(self.measures_wall_work):
+            ti.loop_config(serialize=True)
+            for _ in range(self.clock.live[None]):
+                self.add_wall_work(dt)
 
     def wall_work_done(self) -> float | None:
         """W, the work the moving walls have done on the fluid since t = 0 [J]; None where it is not measured."""
