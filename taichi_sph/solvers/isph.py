@@ -34,6 +34,7 @@ from taichi_sph.physics.momentum import (
     monaghan_viscosity,
     morris_laminar_viscosity,
     pressure_difference_pair_terms,
+    symmetric_pressure_gradient,
 )
 from taichi_sph.physics.ppe_terms import (
     capped_density_error,
@@ -511,8 +512,9 @@ class ISPHSolver(ISPHDeviceLoop, FreeSurfaceDetection, SolverBase):
         if ti.static(self.measures_wall_work):
             if self.is_moving_wall(b):  # the wall's pressure force on a, as the symmetric (WCSPH) pair takes it
                 grad_w = self.kernel.grad_w(r_ab, r_ab.norm())
-                f_ab = -(P.mass[b] / self.rho0 ** 2) * (sums.p_a + p_b - 2.0 * self.p_background) * grad_w
-                sums.wall_power += f_ab.dot(P.v[b])
+                acc_ab = symmetric_pressure_gradient(P.mass[b], sums.p_a - self.p_background, self.rho0,
+                                                     p_b - self.p_background, self.rho0, grad_w)
+                sums.wall_power += acc_ab.dot(P.v[b])
         wetted = P.kind[b] == FLUID or p_normal > self.p_background
         if ti.static(self.wall_tension):
             wetted = True  # (a wall next to fluid is a PPE unknown; in a confined fluid it holds tension too)
