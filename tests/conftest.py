@@ -14,6 +14,12 @@ from taichi_sph.run.runtime import init_taichi, reset
 # LRU cleaning, which evicted kernels the same run had compiled and a re-run compiled them again. Read by
 # ti.init; subprocesses inherit it. A value in the environment wins.
 os.environ.setdefault("TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES", str(1 << 30))
+# Under pytest-xdist with two or more workers (the README's command runs two on two cores) each worker's Taichi
+# runs its parallel loops on one thread: with a thread per core in every worker, the threads of one loop waited on
+# each other across workers (the slow set's standing-wave and drop files: 191 s wall with Taichi's default threads,
+# 165 s with one). Subprocesses the tests start inherit it. A value in the environment wins.
+if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) >= 2:
+    os.environ.setdefault("TI_CPU_MAX_NUM_THREADS", "1")
 
 _ours = None  # the Taichi runtime the fixture below made and no test has allocated in or replaced yet
 
