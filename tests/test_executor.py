@@ -225,3 +225,12 @@ def test_a_pool_starts_the_longest_cases_first():
     jobs = [ex.Job(name, cfg, None) for name, cfg in (("tank", tank), ("3d", wave_3d), ("finer", finer),
                                                           ("tank2", tank))]
     assert [j.name for j in ex.longest_first(jobs)] == ["3d", "finer", "tank", "tank2"]
+
+
+def test_pool_workers_share_the_cores_out():
+    """Each pool worker's Taichi gets cores // workers CPU threads, at least one (executor.worker_threads): with a
+    thread per core in every worker, the threads of one parallel loop waited on each other across workers."""
+    assert ex.worker_threads(2, cores=2) == 1
+    assert ex.worker_threads(3, cores=2) == 1
+    assert ex.worker_threads(4, cores=16) == 4
+    assert ex.worker_threads(1, cores=16) == 16

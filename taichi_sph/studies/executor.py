@@ -265,6 +265,19 @@ class _StopOnInterrupt:
             signal.signal(signal.SIGINT, self._previous)
 
 
+def worker_threads(workers: int, cores: int | None = None) -> int:
+    """Taichi CPU threads per pool worker: the machine's cores shared out, at least one. With every worker at
+    Taichi's default (a thread per core) the threads of one parallel loop wait on each other across workers."""
+    cores = cores or os.cpu_count() or 1
+    return max(1, cores // max(1, workers))
+
+
+def _share_cores(threads: int) -> None:
+    """A pool worker's initializer: its Taichi runtime's CPU threads (TI_CPU_MAX_NUM_THREADS, read by ti.init),
+    unless the user's environment sets them."""
+    os.environ.setdefault("TI_CPU_MAX_NUM_THREADS", str(threads))
+
+
 def _pool(jobs: list[Job], workers: int, done: Callable[[Job, dict], None]) -> None:
     """A local pool of spawned processes. A dead worker breaks the pool: the cases it held are tried
     once more on a fresh pool, then reported failed. After Ctrl-C (or a case that reports itself
@@ -279,7 +292,9 @@ def _pool(jobs: list[Job], workers: int, done: Callable[[Job, dict], None]) -> N
         while pending and not interrupt.stopped:
             retry: list[Job] = []
             context = multiprocessing.get_context("spawn")
-            with ProcessPoolExecutor(min(workers, len(pending)), mp_context=context) as pool:
+            n = min(workers, len(pending))
+            with ProcessPoolExecutor(n, mp_context=context, initializer=_share_cores,
+                                     initargs=(worker_threads(n),)) as pool:
                 futures = {pool.submit(run_job, job): job for job in pending}
                 for fut in as_completed(futures):
                     job = futures[fut]
