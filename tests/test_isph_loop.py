@@ -2,6 +2,7 @@
 stats read-back a step, an f32 clock left host-stepped, and checkpoints that do not carry the loop's constants."""
 
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ from test_ppe_loop import by_id, launched
 from taichi_sph.config.loader import bundled_configs_dir, load_config
 from taichi_sph.run.instrument import count_host_traffic
 from taichi_sph.scene.bodies import build_particles
+from taichi_sph.solvers.isph_loop import BATCH_CAPACITY, ISPHDeviceLoop
 from taichi_sph.solvers.registry import make_solver
 
 
@@ -132,3 +134,17 @@ def test_batches_with_mgcg_and_continuity_density_equal_single_steps():
         dts = solver.advance(1000, 0.05, 0.12) + solver.advance(1000, math.inf, 0.12)
         runs.append(((dts, solver.t, solver.iterations, solver.residuals, solver.builds), by_id(solver)))
     assert_same_run(*runs)
+
+
+def test_a_batch_is_sized_to_the_next_stop():
+    """A batch launches every step it is given (those past t_stop as no-ops, PPE iterations included), so advance
+    gives it about as many steps as reach t_stop at the last dt, and one more (ISPHDeviceLoop.steps_to_reach): the
+    ISPH dam break, writing every 0.005 s at dt ~1.8e-3, ran 224 steps at 1.95e5 particle-steps/s against 1.5e5 when
+    each batch launched the guard's 20, with the same x, v and p."""
+    stub = SimpleNamespace(t=1.0, last_step_dt=None)
+    assert ISPHDeviceLoop.steps_to_reach(stub, 1.0025, [1e-3]) == 4
+    assert ISPHDeviceLoop.steps_to_reach(stub, 1.0025, []) == BATCH_CAPACITY  # no step taken yet: no dt to go by
+    stub.last_step_dt = 5e-4
+    assert ISPHDeviceLoop.steps_to_reach(stub, 1.0025, []) == 6
+    assert ISPHDeviceLoop.steps_to_reach(stub, math.inf, [1e-3]) == BATCH_CAPACITY
+    assert ISPHDeviceLoop.steps_to_reach(stub, 1.0, [1e-3]) == 1

@@ -298,8 +298,19 @@ class ISPHDeviceLoop:
             if self.ppe.serial is None or not self.can_batch():
                 dts.append(self.device_step(t_end))
                 continue
-            dts += self.launch_batch(min(max_steps - len(dts), BATCH_CAPACITY), t_stop, t_end, first=not dts)
+            steps = min(max_steps - len(dts), BATCH_CAPACITY, self.steps_to_reach(min(t_stop, t_end), dts))
+            dts += self.launch_batch(steps, t_stop, t_end, first=not dts)
         return dts
+
+    def steps_to_reach(self, t_stop: float, dts: list[float]) -> int:
+        """About as many steps as reach t_stop at the last step's dt, and one more: a batch launches every step it
+        is given, and those past t_stop run their kernels (PPE iterations included) as no-ops (a run that writes
+        every 0.02 s at dt 4e-3 launched ~50 steps to take 5). Unbounded before a first step; a batch that falls
+        short (a smaller dt) is followed by another."""
+        last = dts[-1] if dts else getattr(self, "last_step_dt", None)
+        if not math.isfinite(t_stop) or last is None or last <= 0.0:
+            return BATCH_CAPACITY
+        return max(1, int(math.ceil((t_stop - self.t) / last)) + 1)
 
     def can_batch(self) -> bool:
         """Whether a step can be skipped on the device: the neighbour build's every loop gated (per-particle
@@ -370,7 +381,8 @@ class ISPHDeviceLoop:
         self.residuals.append(float(record[REC_RESIDUAL]))
         self.pure_neumann_steps += int(record[REC_PINNED] != 0.0)
         self.last_dt_limit = DT_LIMITS[int(record[REC_LIMIT])]
-        return float(record[REC_DT])
+        self.last_step_dt = float(record[REC_DT])
+        return self.last_step_dt
 
     def finish_stalled_step(self, record: np.ndarray) -> float:
         """The stalled solve's remaining iterations (read back every check_every, as `MatrixFreePPE.solve`),
@@ -434,6 +446,7 @@ class ISPHDeviceLoop:
         self.step_tail()
         t, dt = float(state[STATE_CLOCK]), float(state[STATE_CLOCK + 1])
         self.last_dt_limit = DT_LIMITS[int(state[STATE_CLOCK + 2])]
+        self.last_step_dt = dt
         self.t = t + dt
         self.clock_t_sent = self.t
         self.step_count += 1
