@@ -304,9 +304,9 @@ class ISPHDeviceLoop:
 
     def steps_to_reach(self, t_stop: float, dts: list[float]) -> int:
         """About as many steps as reach t_stop at the last step's dt, and one more: a batch launches every step it
-        is given, and those past t_stop run their kernels (PPE iterations included) as no-ops (a run that writes
-        every 0.02 s at dt 4e-3 launched ~50 steps to take 5). Unbounded before a first step; a batch that falls
-        short (a smaller dt) is followed by another."""
+        is given, and those past t_stop run their kernels (PPE iterations included) as no-ops (the ISPH dam break,
+        writing every 0.005 s at dt ~1.8e-3, launched the guard's 20 steps to take 3). Unbounded before a first step;
+        a batch that falls short (a smaller dt) is followed by another."""
         last = dts[-1] if dts else getattr(self, "last_step_dt", None)
         if not math.isfinite(t_stop) or last is None or last <= 0.0:
             return BATCH_CAPACITY

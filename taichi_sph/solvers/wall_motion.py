@@ -29,8 +29,8 @@ class WallMotion:
         self.motions = tuple((tuple(float(a) for a in m.amplitude), 2.0 * math.pi / m.period,
                               float(m.period if m.ramp == AUTO else m.ramp)) for _, m in motions)
         # the power the moving walls' terms put into the fluid at the last force pass, sum_a m_a sum_(b moving)
-        # a_ab . v_b (ISPH: a_ab the wall's share of the predictor's viscosities and the corrected pressure
-        # gradient), and its integral over the run, the work W (f64 where the clock is)
+        # a_ab . v_b (ISPH: a_ab the predictor's viscous wall pairs and the symmetric pressure pair at the solved
+        # pressures, solvers/isph.py), and its integral over the run, the work W (f64 where the clock is)
         self.measures_wall_work = self.wall_motion
         if not self.wall_motion:
             return
