@@ -215,7 +215,7 @@ def test_an_oscillating_walls_work_is_taken_out_of_the_energy_the_guard_judges()
     """Both solvers measure the work W their moving walls do (solvers/wall_motion.py): the guard then judges
     E - E_rest - W and is on. A piston that has put 30 J into the fluid leaves the balance where it was; the same
     30 J with no work behind it trips the guard; a balance within WALL_WORK_TOLERANCE of the largest |W| (the
-    measure's O(dx) error: 6-10% on a flume at 20 particles over the depth) does not. The rest state's container is
+    measure's O(dx) error: 6-10% on a flume at 10 particles over the depth) does not. The rest state's container is
     the flume's water side of the piston (validation/energy.py `_lined_sides`): the flume at rest is at rest."""
     cfg = load_config(CONFIGS / "wave_flume_2d.yaml")
     a = build_particles(cfg)

@@ -28,8 +28,8 @@ SETTLING_HINT = 3.0
 GAIN_WARN = 0.5
 # the balance E - E_rest - W of oscillating walls is allowed this fraction of the largest |W| so far on top of the
 # floor: the pair sums miss the share of the wall's pressure force the fluid takes from the static wall particles
-# under a moving body's edge (a piston's corner with the floor), an O(dx) part of W. A 2 m flume at 20 particles over
-# the depth: E - E_rest - W swings +-1.8 J with the piston, 6-10% of |W| (both solvers); WCSPH at 40: 3.6%
+# under a moving body's edge (a piston's corner with the floor), an O(dx) part of W. A 2 m flume at 10 particles over
+# the depth: E - E_rest - W swings +-1.8 J with the piston, 6-10% of |W| (both solvers); WCSPH at 20 (the 6 m flume): 3.6%
 WALL_WORK_TOLERANCE = 0.25
 
 ENERGY_COLUMNS = ["potential_energy", "elastic_energy", "energy_above_rest"]
