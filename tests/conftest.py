@@ -5,6 +5,7 @@ import pytest
 import taichi as ti
 
 from taichi_sph.run.runtime import init_taichi, reset
+from taichi_sph.studies.executor import worker_threads
 
 # Taichi's offline cache (on in init_taichi; ~/.cache/taichi/ticache, shared by every process, the runs the
 # tests start as subprocesses too) keys a kernel on its code and on the fields it touches: their shapes and
@@ -14,12 +15,14 @@ from taichi_sph.run.runtime import init_taichi, reset
 # LRU cleaning, which evicted kernels the same run had compiled and a re-run compiled them again. Read by
 # ti.init; subprocesses inherit it. A value in the environment wins.
 os.environ.setdefault("TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES", str(1 << 30))
-# Under pytest-xdist with two or more workers (the README's command runs two on two cores) each worker's Taichi
-# runs its parallel loops on one thread: with a thread per core in every worker, the threads of one loop waited on
-# each other across workers (the slow set's standing-wave and drop files: 191 s wall with Taichi's default threads,
-# 165 s with one). Subprocesses the tests start inherit it. A value in the environment wins.
-if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) >= 2:
-    os.environ.setdefault("TI_CPU_MAX_NUM_THREADS", "1")
+# Under pytest-xdist with two or more workers (the README's command runs two on two cores) each worker's Taichi gets
+# its share of the cores, as the product's process pool gives its workers (executor.worker_threads: one each here):
+# with a thread per core in every worker, the threads of one loop waited on each other across workers (the slow
+# set's standing-wave and drop files: 191 s wall with Taichi's default threads, 165 s with one). Subprocesses the
+# tests start inherit it. A value in the environment wins.
+_workers = int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1"))
+if _workers >= 2:
+    os.environ.setdefault("TI_CPU_MAX_NUM_THREADS", str(worker_threads(_workers)))
 
 _ours = None  # the Taichi runtime the fixture below made and no test has allocated in or replaced yet
 
