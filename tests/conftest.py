@@ -11,10 +11,8 @@ from taichi_sph.studies.executor import worker_threads
 # tests start as subprocesses too) keys a kernel on its code and on the fields it touches: their shapes and
 # their SNode ids, which count up from 0 after each ti.init. So a second solver in the same runtime compiles
 # every kernel again, and a solver is served from the cache only when it is allocated in the same order since
-# the last init as one compiled before. The suite writes a few hundred MB; Taichi's default cap is 100 MB with
-# LRU cleaning, which evicted kernels the same run had compiled and a re-run compiled them again. Read by
-# ti.init; subprocesses inherit it. A value in the environment wins.
-os.environ.setdefault("TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES", str(1 << 30))
+# the last init as one compiled before. The suite writes a few hundred MB: init_taichi sizes the cache at 1 GiB
+# (run/compile_time.py; Taichi's default of 100 MB evicted kernels the same run had compiled).
 # Under pytest-xdist with two or more workers (the README's command runs two on two cores) each worker's Taichi gets
 # its share of the cores, as the product's process pool gives its workers (executor.worker_threads: one each here):
 # with a thread per core in every worker, the threads of one loop waited on each other across workers (the slow

@@ -9,6 +9,7 @@ import os
 import taichi as ti
 
 from taichi_sph.errors import SPHError
+from taichi_sph.run.compile_time import memoize_frontend, offline_cache_size
 from taichi_sph.sph.precision import forget_float64
 
 _ARCHES = {
@@ -27,6 +28,7 @@ _current: tuple[str, str] | None = None
 def init_taichi(arch: str = "cpu", precision: str = "f32", *, force: bool = False, debug: bool = False) -> None:
     """Initialise Taichi once per (arch, precision); re-initialising drops every existing field.
 
+    The kernel cache holds 1 GiB and Taichi's front end memoises its source positions (run/compile_time.py).
     `auto` and `gpu` take the first GPU backend Taichi finds (cuda, then vulkan, ...; ti.gpu is that list) and
     fall back to the CPU when there is none; a named arch that Taichi cannot start is an error.
     """
@@ -40,7 +42,9 @@ def init_taichi(arch: str = "cpu", precision: str = "f32", *, force: bool = Fals
     if _current == key and not force:
         return
     fp = ti.f64 if precision == "f64" else ti.f32
-    kwargs = dict(default_fp=fp, default_ip=ti.i32, offline_cache=True, debug=debug, log_level=ti.ERROR)
+    kwargs = dict(default_fp=fp, default_ip=ti.i32, offline_cache=True, debug=debug, log_level=ti.ERROR,
+                  **offline_cache_size())
+    memoize_frontend()  # run/compile_time.py: the same kernels, compiled sooner
     with contextlib.redirect_stdout(io.StringIO()):  # "[Taichi] Starting on arch=..." banner
         if arch == "cpu":
             ti.init(arch=ti.cpu, **kwargs)
