@@ -408,3 +408,31 @@ def test_a_wall_velocity_across_a_face_the_fluid_touches_is_refused():
         config_from_dict(tank)
     for scene in ("cavity_2d.yaml", "cavity_re1000_2d.yaml"):
         assert load_config(bundled_configs_dir() / scene, ["particles.dx=0.02"]).moving_walls
+
+
+def test_set_reaches_a_list_items_keys_by_index(tmp_path):
+    """`--set bodies[1].hi=...` changes one key of one body (and an optional section inside it); the rest of the
+    list and the input stay as they were."""
+    data = {"bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [1.0, 1.0]},
+                       {"type": "wall_box", "lo": [0.0, 0.0], "hi": [2.0, 1.5]}]}
+    out = apply_overrides(data, ["bodies[1].hi=[3.0, 1.5]", "bodies[1].motion.period=1.2", "bodies[0].lo=[0.5, 0.0]"])
+    assert out["bodies"][1] == {"type": "wall_box", "lo": [0.0, 0.0], "hi": [3.0, 1.5], "motion": {"period": 1.2}}
+    assert out["bodies"][0]["lo"] == [0.5, 0.0] and out["bodies"][0]["hi"] == [1.0, 1.0]
+    assert data["bodies"][1] == {"type": "wall_box", "lo": [0.0, 0.0], "hi": [2.0, 1.5]}
+    cfg = load_config(bundled_configs_dir() / "standing_wave_3d.yaml", ["bodies[0].hi=[2.0, 0.25, 1.0]",
+                                                                         "bodies[1].hi=[2.0, 0.25, 1.3]"])
+    assert cfg.bodies[0].hi[1] == 0.25 and cfg.bodies[1].hi[1] == 0.25 and cfg.bodies[1].type == "wall_box"
+
+
+@pytest.mark.parametrize("override, fragment", [
+    ("bodies.hi=[1, 1]", "'bodies' has 2 item(s): name one by its index, bodies[0] to bodies[1]"),
+    ("bodies[2].hi=[1, 1]", "'bodies' has 2 item(s)"),
+    ("probes[0].x=1", "'probes' has no items to change"),
+    ("particles[0].dx=0.1", "'particles' is not a list of sections"),
+    ("bodies[0].radius_of=1", "unknown key 'bodies[0].radius_of'; allowed at bodies[0]: type"),
+])
+def test_set_list_item_errors(override, fragment):
+    data = {"bodies": [{"type": "fluid_block"}, {"type": "wall_box"}]}
+    with pytest.raises(ConfigError) as e:
+        apply_overrides(data, [override])
+    assert str(e.value).startswith("--set") and fragment in str(e.value)

@@ -25,7 +25,7 @@ class _Parser(argparse.ArgumentParser):
 
 def _add_common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--set", dest="overrides", action="append", default=[], metavar="KEY=VALUE",
-                   help="override a config key, e.g. --set particles.dx=0.01 (repeatable)")
+                   help="override a config key, e.g. --set particles.dx=0.01, a list item's by its index: --set \"bodies[0].hi=[1.0, 0.5]\" (repeatable)")
     p.add_argument("--arch", choices=("cpu", "cuda", "vulkan", "gpu", "auto"), help="Taichi backend (default: config)")
     p.add_argument("--quiet", action="store_true", help="no progress bar or log lines")
 

@@ -209,31 +209,78 @@ def parse_override(text: str) -> tuple[list[str], Any]:
 
 
 def apply_overrides(data: dict, overrides: list[str]) -> dict:
-    """Apply `--set a.b=value` overrides; keys must exist in the schema."""
+    """Apply `--set a.b=value` overrides; keys must exist in the schema. An item of a list of sections is named by
+    its index, `bodies[1].hi=[2.0, 0.3]` (the item must exist: an override changes a scene, it does not add bodies)."""
     data = _deep_merge({}, data)
     for text in overrides:
         parts, value = parse_override(text)
-        cls: Any = Config
-        node = data
-        for i, part in enumerate(parts):
-            names = {f.name: f for f in dataclasses.fields(cls)} if is_dataclass_type(cls) else {}
-            if part not in names:
-                where = ".".join(parts[:i]) or "top level"
-                raise ConfigError(f"unknown key '{'.'.join(parts)}'; allowed at {where}: {', '.join(names)}", source="--set",
-                                  key=".".join(parts))
-            if i == len(parts) - 1:
-                node[part] = value
-            else:
-                tp = typing.get_type_hints(cls)[part]
-                if not is_dataclass_type(tp):
-                    raise ConfigError(f"'{part}' is not a section", source="--set", key=".".join(parts))
-                child = node.get(part)
-                if not isinstance(child, dict):
-                    child = {}
-                node[part] = child = dict(child)
-                node = child
-                cls = tp
+        _set_key(data, Config, parts, 0, value)
     return data
+
+
+_INDEXED = re.compile(r"^(\w+)\[(\d+)\]$")
+
+
+def _section_type(tp: Any) -> Any:
+    """The dataclass of a section field (Optional[section] included), else None."""
+    if is_dataclass_type(tp):
+        return tp
+    args = [a for a in typing.get_args(tp) if a is not type(None)]
+    return args[0] if len(args) == 1 and is_dataclass_type(args[0]) and type(None) in typing.get_args(tp) else None
+
+
+def _list_item_type(tp: Any) -> Any:
+    """The dataclass of the items of a list-of-sections field (tuple[Body, ...]), else None."""
+    args = typing.get_args(tp)
+    return args[0] if typing.get_origin(tp) is tuple and args and is_dataclass_type(args[0]) else None
+
+
+def _name_an_item(name: str, count: int) -> str:
+    """The error for a list item that is not named, or not there."""
+    if count == 0:
+        return f"'{name}' has no items to change"
+    return f"'{name}' has {count} item(s): name one by its index, {name}[0]" + (f" to {name}[{count - 1}]" if count > 1 else "")
+
+
+def _set_key(node: dict, cls: Any, parts: list[str], i: int, value: Any) -> None:
+    """node[parts[i]]...[parts[-1]] = value (copying every dict and list it changes), each part checked against the
+    schema class of its level."""
+    key = ".".join(parts)
+    match = _INDEXED.match(parts[i])
+    name = match.group(1) if match else parts[i]
+    names = {f.name: f for f in dataclasses.fields(cls)} if is_dataclass_type(cls) else {}
+    if name not in names:
+        where = ".".join(parts[:i]) or "top level"
+        raise ConfigError(f"unknown key '{key}'; allowed at {where}: {', '.join(names)}", source="--set", key=key)
+    tp = typing.get_type_hints(cls)[name]
+    item_cls = _list_item_type(tp)
+    if match or item_cls is not None and i < len(parts) - 1:
+        items = node.get(name)
+        count = len(items) if isinstance(items, list) else 0
+        if item_cls is None:
+            raise ConfigError(f"'{name}' is not a list of sections", source="--set", key=key)
+        if not match or int(match.group(2)) >= count:
+            raise ConfigError(_name_an_item(name, count), source="--set", key=key)
+        items = list(items)
+        node[name] = items
+        index = int(match.group(2))
+        if i == len(parts) - 1:
+            items[index] = value
+            return
+        if not isinstance(items[index], dict):
+            raise ConfigError(f"'{parts[i]}' is not a section", source="--set", key=key)
+        items[index] = child = dict(items[index])
+        _set_key(child, item_cls, parts, i + 1, value)
+        return
+    if i == len(parts) - 1:
+        node[name] = value
+        return
+    section = _section_type(tp)
+    if section is None:
+        raise ConfigError(f"'{name}' is not a section", source="--set", key=key)
+    child = node.get(name)
+    node[name] = child = dict(child) if isinstance(child, dict) else {}
+    _set_key(child, section, parts, i + 1, value)
 
 
 def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
