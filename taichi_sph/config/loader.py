@@ -255,22 +255,9 @@ def _set_key(node: dict, cls: Any, parts: list[str], i: int, value: Any) -> None
     tp = typing.get_type_hints(cls)[name]
     item_cls = _list_item_type(tp)
     if match or item_cls is not None and i < len(parts) - 1:
-        items = node.get(name)
-        count = len(items) if isinstance(items, list) else 0
         if item_cls is None:
             raise ConfigError(f"'{name}' is not a list of sections", source="--set", key=key)
-        if not match or int(match.group(2)) >= count:
-            raise ConfigError(_name_an_item(name, count), source="--set", key=key)
-        items = list(items)
-        node[name] = items
-        index = int(match.group(2))
-        if i == len(parts) - 1:
-            items[index] = value
-            return
-        if not isinstance(items[index], dict):
-            raise ConfigError(f"'{parts[i]}' is not a section", source="--set", key=key)
-        items[index] = child = dict(items[index])
-        _set_key(child, item_cls, parts, i + 1, value)
+        _set_item(node, name, item_cls, int(match.group(2)) if match else None, parts, i, value)
         return
     if i == len(parts) - 1:
         node[name] = value
@@ -281,6 +268,23 @@ def _set_key(node: dict, cls: Any, parts: list[str], i: int, value: Any) -> None
     child = node.get(name)
     node[name] = child = dict(child) if isinstance(child, dict) else {}
     _set_key(child, section, parts, i + 1, value)
+
+
+def _set_item(node: dict, name: str, item_cls: Any, index: int | None, parts: list[str], i: int, value: Any) -> None:
+    """node[name][index] (an existing item of a list of sections), or a key inside it, = value."""
+    key = ".".join(parts)
+    items = node.get(name)
+    count = len(items) if isinstance(items, list) else 0
+    if index is None or index >= count:
+        raise ConfigError(_name_an_item(name, count), source="--set", key=key)
+    node[name] = items = list(items)
+    if i == len(parts) - 1:
+        items[index] = value
+        return
+    if not isinstance(items[index], dict):
+        raise ConfigError(f"'{parts[i]}' is not a section", source="--set", key=key)
+    items[index] = child = dict(items[index])
+    _set_key(child, item_cls, parts, i + 1, value)
 
 
 def load_config(path: str | Path, overrides: list[str] | None = None) -> Config:
