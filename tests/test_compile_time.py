@@ -103,6 +103,29 @@ def test_source_lines_are_memoised_per_code_object_and_handed_out_as_copies():
     assert len(lines.cache) == before + 1  # one def, one entry, whatever the closure
 
 
+def test_kernel_impls_textwrap_is_textwrap_with_fill_and_dedent_memoised():
+    import textwrap
+
+    memoize_frontend()
+    memo = kernel_impl.textwrap
+    assert memo is not textwrap and memo.TextWrapper is textwrap.TextWrapper
+    line = "\tif a > b:  # a tab, then a comment " + "x" * 120
+    assert memo.fill(line, tabsize=4, width=9999) == textwrap.fill(line, tabsize=4, width=9999)
+    assert memo.fill(line, width=40) == textwrap.fill(line, width=40)  # the arguments are part of the key
+    block = "    def f():\n        return 1\n"
+    assert memo.dedent(block) == textwrap.dedent(block) == "def f():\n    return 1\n"
+    hits = memo.fill.cache_info().hits
+    out = ti.field(ti.f32, shape=2)
+
+    @ti.kernel
+    def twice():
+        out[0] = _pair_term(1.0, 2.0)
+        out[1] = _pair_term(2.0, 1.0)
+
+    twice()
+    assert memo.fill.cache_info().hits > hits  # the second inline of _pair_term's lines (Taichi's own call)
+
+
 def test_the_kernel_cache_is_sized_at_a_gibibyte_unless_the_environment_says(monkeypatch):
     """Taichi's default (100 MB, the least recently used quarter dropped when a process ends) evicted the kernels
     of the bundled scenes' earlier runs; init_taichi asks for 1 GiB. TI_OFFLINE_CACHE_MAX_SIZE_OF_FILES wins."""

@@ -12,17 +12,21 @@ one thread, the solver built and 20 steps, Taichi 1.7.4; docs/performance.md "Co
    wrapped by textwrap) for every AST node it transforms, and reads a function's source with inspect (tokenize)
    each time the function is inlined. A solver inlines the same `ti.func` bodies hundreds of times (30k nodes for
    WCSPH's 26 kernels, 4.7k distinct positions). Both depend on the source text only, so `memoize_frontend`
-   remembers them: the same strings, computed once (WCSPH 4.1 -> 3.2 s, ISPH 6.6 -> 4.6 s with the cache warm).
+   remembers them, and the tab expansion (textwrap.fill) of every source line it does per inline: the same strings,
+   computed once (WCSPH 4.1 -> 3.2 s, ISPH 6.6 -> 4.6 s with the cache warm, before the textwrap memo).
 
 Both touch Taichi's internals (taichi.lang.ast.ast_transformer_utils.ASTTransformerContext.get_pos_info and the
-`getsourcelines` / `getsourcefile` names kernel_impl imported), so each patch is applied only where those names
+`getsourcelines` / `getsourcefile` / `textwrap` names kernel_impl imported), so each patch is applied only where those names
 exist as expected and is otherwise left out: a Taichi without them compiles as before, only slower.
 """
 
 from __future__ import annotations
 
+import functools
 import inspect
 import os
+import textwrap
+import types
 from typing import Any, Callable
 
 OFFLINE_CACHE_BYTES = 1 << 30
@@ -58,8 +62,20 @@ def memoize_frontend() -> bool:
     context.get_pos_info = memoized_position_info(position)
     kernel_impl.getsourcelines = memoized_by_code(lines, copy=lambda r: (list(r[0]), r[1]))
     kernel_impl.getsourcefile = memoized_by_code(source_file)
+    if getattr(kernel_impl, "textwrap", None) is textwrap:
+        kernel_impl.textwrap = memoized_textwrap()
     _memoized = True
     return True
+
+
+def memoized_textwrap() -> types.ModuleType:
+    """The textwrap module with fill and dedent memoised (pure functions of their arguments): kernel_impl fills every
+    source line of a function (width 9999: a tab expansion) and dedents the function each time it inlines it."""
+    module = types.ModuleType("textwrap", textwrap.__doc__)
+    module.__dict__.update({k: v for k, v in vars(textwrap).items() if not k.startswith("__")})
+    module.fill = functools.lru_cache(maxsize=None)(textwrap.fill)
+    module.dedent = functools.lru_cache(maxsize=None)(textwrap.dedent)
+    return module
 
 
 def position_key(ctx: Any, node: Any) -> tuple:
