@@ -1,4 +1,4 @@
-"""Taichi's compile time: the kernel cache's size and two memos for Taichi's front end.
+"""Taichi's compile time: the kernel cache's size and memos for Taichi's front end.
 
 What a run spends before its first step, measured on the 2-core development VM (`dam_break_2d` at dx 0.05, f32,
 one thread, the solver built and 20 steps, Taichi 1.7.4; docs/performance.md "Compile time"):
@@ -15,9 +15,9 @@ one thread, the solver built and 20 steps, Taichi 1.7.4; docs/performance.md "Co
    remembers them, and the tab expansion (textwrap.fill) of every source line it does per inline: the same strings,
    computed once (WCSPH 4.1 -> 3.2 s, ISPH 6.6 -> 4.6 s with the cache warm, before the textwrap memo).
 
-Both touch Taichi's internals (taichi.lang.ast.ast_transformer_utils.ASTTransformerContext.get_pos_info and the
-`getsourcelines` / `getsourcefile` / `textwrap` names kernel_impl imported), so each patch is applied only where those names
-exist as expected and is otherwise left out: a Taichi without them compiles as before, only slower.
+The memos touch Taichi's internals (taichi.lang.ast.ast_transformer_utils.ASTTransformerContext.get_pos_info and
+the `getsourcelines` / `getsourcefile` / `textwrap` names kernel_impl imported), so each is applied only where those
+names exist as expected and is otherwise left out: a Taichi without them compiles as before, only slower.
 """
 
 from __future__ import annotations
@@ -44,8 +44,8 @@ def offline_cache_size() -> dict[str, int]:
 
 
 def memoize_frontend() -> bool:
-    """Memoise Taichi's per-node position strings and per-function source lines (once per process); True where
-    both patches are in place."""
+    """Memoise Taichi's per-node position strings, per-function source lines and per-line tab expansion (once per
+    process); True where the first two are in place (the third where kernel_impl uses textwrap as it did)."""
     global _memoized
     if _memoized:
         return True
