@@ -410,7 +410,7 @@ def test_a_wall_velocity_across_a_face_the_fluid_touches_is_refused():
         assert load_config(bundled_configs_dir() / scene, ["particles.dx=0.02"]).moving_walls
 
 
-def test_set_reaches_a_list_items_keys_by_index(tmp_path):
+def test_set_reaches_a_list_items_keys_by_index():
     """`--set bodies[1].hi=...` changes one key of one body (and an optional section inside it); the rest of the
     list and the input stay as they were."""
     data = {"bodies": [{"type": "fluid_block", "lo": [0.0, 0.0], "hi": [1.0, 1.0]},

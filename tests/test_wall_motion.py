@@ -36,8 +36,8 @@ def _flume(dx: float, t_end: float, solver: str = "wcsph", length: float = 6.0, 
 
 def _run_to(cfg, t_end: float, record=None, every: float = 0.02):
     """The config's solver stepped to t_end, `record(solver)` called every `every` seconds, the steps between two
-    records in as few launches as the solver's device loop allows (WCSPH, the piston's 7.2 s: 130 s against 154 s a
-    step a launch)."""
+    records in as few launches as the solver's device loop allows (WCSPH, the piston on a 6 m flume to 7.2 s, as
+    the test was before session 49: 130 s against 154 s a step a launch)."""
     solver = make_solver(cfg, build_particles(cfg))
     solver.prepare()
     t_next = 0.0

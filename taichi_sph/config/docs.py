@@ -5,7 +5,7 @@ from __future__ import annotations
 import dataclasses
 import typing
 
-from taichi_sph.config.loader import is_dataclass_type, to_dict
+from taichi_sph.config.loader import is_dataclass_type, list_item_type, section_type, to_dict
 from taichi_sph.config.schema import Config
 
 
@@ -18,21 +18,19 @@ def config_reference() -> str:
         for f in dataclasses.fields(cls):
             key = f"{prefix}{f.name}"
             tp = hints[f.name]
-            item = typing.get_args(tp)[0] if typing.get_origin(tp) is tuple else None
+            section, item = section_type(tp), list_item_type(tp)
             if is_dataclass_type(tp):
                 walk(tp, key + ".")
                 continue
-            if item is not None and is_dataclass_type(item):
+            if item is not None:
                 walk(item, key + "[].")
                 continue
-            optional = [a for a in typing.get_args(tp) if a is not type(None)]
             default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
-            if len(optional) == 1 and is_dataclass_type(optional[0]) and default is None:  # an optional section
+            if section is not None and default is None:  # an optional section
                 doc = f.metadata.get("doc", "")
                 rows.append(f"| `{key}` |  |  | {doc}; null = none; its keys: |")
-                walk(optional[0], key + ".")
+                walk(section, key + ".")
                 continue
-            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
             doc = f.metadata.get("doc", "")
             if f.metadata.get("choices"):
                 doc += " (one of: " + ", ".join(f"`{c}`" for c in f.metadata["choices"]) + ")"

@@ -221,7 +221,7 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
 _INDEXED = re.compile(r"^(\w+)\[(\d+)\]$")
 
 
-def _section_type(tp: Any) -> Any:
+def section_type(tp: Any) -> Any:
     """The dataclass of a section field (Optional[section] included), else None."""
     if is_dataclass_type(tp):
         return tp
@@ -229,7 +229,7 @@ def _section_type(tp: Any) -> Any:
     return args[0] if len(args) == 1 and is_dataclass_type(args[0]) and type(None) in typing.get_args(tp) else None
 
 
-def _list_item_type(tp: Any) -> Any:
+def list_item_type(tp: Any) -> Any:
     """The dataclass of the items of a list-of-sections field (tuple[Body, ...]), else None."""
     args = typing.get_args(tp)
     return args[0] if typing.get_origin(tp) is tuple and args and is_dataclass_type(args[0]) else None
@@ -253,7 +253,7 @@ def _set_key(node: dict, cls: Any, parts: list[str], i: int, value: Any) -> None
         where = ".".join(parts[:i]) or "top level"
         raise ConfigError(f"unknown key '{key}'; allowed at {where}: {', '.join(names)}", source="--set", key=key)
     tp = typing.get_type_hints(cls)[name]
-    item_cls = _list_item_type(tp)
+    item_cls = list_item_type(tp)
     if match or item_cls is not None and i < len(parts) - 1:
         if item_cls is None:
             raise ConfigError(f"'{name}' is not a list of sections", source="--set", key=key)
@@ -262,7 +262,7 @@ def _set_key(node: dict, cls: Any, parts: list[str], i: int, value: Any) -> None
     if i == len(parts) - 1:
         node[name] = value
         return
-    section = _section_type(tp)
+    section = section_type(tp)
     if section is None:
         raise ConfigError(f"'{name}' is not a section", source="--set", key=key)
     child = node.get(name)
