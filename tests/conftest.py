@@ -58,7 +58,7 @@ def taichi_cpu():
 SLOW = {
     "test_executor.py::test_ray_cluster_gives_the_same_sweep_as_one_process": "~13 s: starts a local Ray cluster",
     "test_gradient_normalisation.py::test_the_bundled_tank_holds_rho0_g_d_to_a_tenth_of_a_percent": "~55 s: WCSPH, 6.4k fluid, 5k steps in f64",
-    "test_wall_motion.py::test_a_piston_makes_the_wave_height_of_biesels_transfer_function": "~100 s (WCSPH), 25 s (ISPH): 4k fluid to t = 6",
+    "test_wall_motion.py::test_a_piston_makes_the_wave_height_of_biesels_transfer_function": "~50 s (WCSPH, 2.3k fluid), 25 s (ISPH, 4k): to t = 6",
     "test_drops.py::test_isph_defaults_keep_a_users_drop_within_two_percent": "71 s under load 6 (~25 s quiet): ISPH to t = 0.4",
     # the drop into a pool at half the default step, with and without the switch's noise source
     "test_viscosity_switch.py::test_the_noise_source_holds_a_pool_at_a_small_step[2.0-ok]": "~15-25 s: ISPH to t = 0.75",
@@ -169,7 +169,7 @@ SLOW = {
     "test_drops.py::test_wcsph_defaults_keep_a_users_drop_within_two_percent": "21 s",
     # the longest of the default set in a cold-cache profile on a quiet machine (session 37: 689 tests in 8:50 with
     # an empty Taichi kernel cache, over the README command's 8 minutes; 4:43 warm; seconds of that profile)
-    "test_view.py::test_offscreen_view_needs_no_display": "55 s: view --offscreen --realtime, a measurement and a paced run",
+    "test_view.py::test_offscreen_view_needs_no_display": "~25 s: Xvfb-free view --offscreen and the renderer (69 s with --realtime before session 50)",
     "test_isph.py::test_artificial_viscosity_does_not_expand_a_free_surface": "35 s",
     "test_isph_loop.py::test_batches_with_mgcg_and_continuity_density_equal_single_steps": "28 s",
     "test_viscosity_switch.py::test_a_users_drop_into_a_pool_ends_ok_with_the_defaults": "27 s each solver: to t = 1",

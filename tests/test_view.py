@@ -154,21 +154,16 @@ def test_view_2d_frames_match_offscreen(xvfb_display, tmp_path):
 
 def test_offscreen_view_needs_no_display(tmp_path):
     """`view --offscreen --frames N` with no DISPLAY: the window's frames drawn into GGUI's offscreen image (a GPU
-    server's measurement), the same picture as the offscreen renderer's of the same state outside the panel; with
-    --realtime it writes the achieved RTF. Without --frames it is a usage error (nothing would close it)."""
+    server's measurement), the same picture as the offscreen renderer's of the same state outside the panel. Without
+    --frames it is a usage error (nothing would close it). (--realtime's measurement, pacing and realtime.json are
+    the same code with a window or without: test_realtime_view_writes_the_rtf_and_frame_rate runs them; here they
+    were 45 of this test's 69 s.)"""
     out = tmp_path / "off"
-    cache = {"TAICHI_SPH_CACHE": str(tmp_path / "cache")}
-    os.environ.update(cache)
-    try:
-        done = _view([str(ROOT / "configs/dam_break_2d.yaml"), *SMALL_2D, "--offscreen", "--frames", "6", "--record",
-                      "--out", str(out), "--set", "render.video=none", "--realtime", "--solver", "wcsph", "--set",
-                      "realtime.min_particles_across=4"], None, tmp_path)
-        refused = _view([str(ROOT / "configs/dam_break_2d.yaml"), "--offscreen"], None, tmp_path, timeout=60)
-    finally:
-        os.environ.pop("TAICHI_SPH_CACHE")
+    done = _view([str(ROOT / "configs/dam_break_2d.yaml"), *SMALL_2D, "--offscreen", "--frames", "6", "--record",
+                  "--out", str(out), "--set", "render.video=none", "--solver", "wcsph"], None, tmp_path)
+    refused = _view([str(ROOT / "configs/dam_break_2d.yaml"), "--offscreen"], None, tmp_path, timeout=60)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert "view: 6 frames" in done.stdout and "realtime: achieved RTF" in done.stdout
-    assert json.loads((out / "realtime.json").read_text())["frames_per_s"] > 0
+    assert "view: 6 frames" in done.stdout
     frames = sorted((out / "frames").glob("frame_*.png"))
     assert len(frames) == 6
     shown = iio.imread(frames[-1])[..., :3]
