@@ -1,5 +1,7 @@
 import gc
+import json
 import os
+from pathlib import Path
 
 import pytest
 import taichi as ti
@@ -196,3 +198,34 @@ def pytest_collection_modifyitems(config, items):
         module = modules.get(path.removesuffix(".py"))
         if module is not None and not hasattr(module, name.split("[")[0]):
             raise pytest.UsageError(f"tests/conftest.py SLOW names {key}, which {path} does not define")
+
+
+# ----------------------------------------------------------------------------- the longest files first
+# The two xdist workers take a file at a time (pyproject addopts: --dist loadfile), in collection order
+# (--no-loadscope-reorder: xdist's own order is by the number of tests in a file, which sent a file holding one
+# long test last, and one worker ran it while the other had finished). Here the files are ordered by the seconds
+# their selected tests took in the last profile (tests/durations.json, `pytest --durations=0` of the default and
+# the slow set; a test it does not list counts DEFAULT_SECONDS), the longest first: the files that end the run are
+# short ones. Only on the workers (both order alike); a run without xdist keeps the files' order.
+DURATIONS = Path(__file__).with_name("durations.json")
+DEFAULT_SECONDS = 1.0
+
+
+class LongestFilesFirst:
+    @pytest.hookimpl(trylast=True)  # after -m has deselected: the estimate is of the tests that will run
+    def pytest_collection_modifyitems(self, config, items):
+        seconds = json.loads(DURATIONS.read_text()) if DURATIONS.is_file() else {}
+        per_file: dict[str, float] = {}
+        first: dict[str, int] = {}
+        for i, item in enumerate(items):
+            path = item.nodeid.split("::", 1)[0]
+            per_file[path] = per_file.get(path, 0.0) + seconds.get(item.nodeid.split("tests/", 1)[-1], DEFAULT_SECONDS)
+            first.setdefault(path, i)
+        order = {id(item): i for i, item in enumerate(items)}
+        items.sort(key=lambda item: (-per_file[item.nodeid.split("::", 1)[0]], first[item.nodeid.split("::", 1)[0]],
+                                     order[id(item)]))
+
+
+def pytest_configure(config):
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        config.pluginmanager.register(LongestFilesFirst(), "taichi_sph_longest_files_first")
