@@ -171,7 +171,6 @@ SLOW = {
     "test_drops.py::test_wcsph_defaults_keep_a_users_drop_within_two_percent": "21 s",
     # the longest of the default set in a cold-cache profile on a quiet machine (session 37: 689 tests in 8:50 with
     # an empty Taichi kernel cache, over the README command's 8 minutes; 4:43 warm; seconds of that profile)
-    "test_view.py::test_offscreen_view_needs_no_display": "~25 s: Xvfb-free view --offscreen and the renderer (69 s with --realtime before session 50)",
     "test_isph.py::test_artificial_viscosity_does_not_expand_a_free_surface": "35 s",
     "test_isph_loop.py::test_batches_with_mgcg_and_continuity_density_equal_single_steps": "28 s",
     "test_viscosity_switch.py::test_a_users_drop_into_a_pool_ends_ok_with_the_defaults": "27 s each solver: to t = 1",
