@@ -185,10 +185,15 @@ SLOW = {
 }
 
 
+def node_key(item) -> str:
+    """'test_file.py::test_name[param]': a test's name in SLOW and in tests/durations.json."""
+    return item.nodeid.split("tests/", 1)[-1]
+
+
 @pytest.hookimpl(tryfirst=True)  # before pytest's -m deselection sees the items
 def pytest_collection_modifyitems(config, items):
     for item in items:
-        if item.nodeid.split("tests/", 1)[-1] in SLOW or item.nodeid.split("tests/", 1)[-1].split("[")[0] in SLOW:
+        if node_key(item) in SLOW or node_key(item).split("[")[0] in SLOW:
             item.add_marker(pytest.mark.slow)
     # an entry whose test was renamed would silently make a long test default again: refuse it
     modules = {item.module.__name__: item.module for item in items if getattr(item, "module", None) is not None}
@@ -215,15 +220,12 @@ class LongestFilesFirst:
     @pytest.hookimpl(trylast=True)  # after -m has deselected: the estimate is of the tests that will run
     def pytest_collection_modifyitems(self, config, items):
         seconds = json.loads(DURATIONS.read_text()) if DURATIONS.is_file() else {}
-        per_file: dict[str, float] = {}
-        first: dict[str, int] = {}
-        for i, item in enumerate(items):
-            path = item.nodeid.split("::", 1)[0]
-            per_file[path] = per_file.get(path, 0.0) + seconds.get(item.nodeid.split("tests/", 1)[-1], DEFAULT_SECONDS)
-            first.setdefault(path, i)
-        order = {id(item): i for i, item in enumerate(items)}
-        items.sort(key=lambda item: (-per_file[item.nodeid.split("::", 1)[0]], first[item.nodeid.split("::", 1)[0]],
-                                     order[id(item)]))
+        per_file: dict[str, float] = {}  # in the order the files come: the stable sort keeps it among equals
+        for item in items:
+            path = node_key(item).split("::", 1)[0]
+            per_file[path] = per_file.get(path, 0.0) + seconds.get(node_key(item), DEFAULT_SECONDS)
+        rank = {path: i for i, path in enumerate(sorted(per_file, key=lambda path: -per_file[path]))}
+        items.sort(key=lambda item: rank[node_key(item).split("::", 1)[0]])  # stable: a file's tests keep their order
 
 
 def pytest_configure(config):
