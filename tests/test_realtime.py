@@ -193,15 +193,19 @@ def test_real_measurement_and_choice_on_a_tiny_scene(tmp_path, monkeypatch):
         assert not again.measured and len(logged) == n_logged and again.pick.cand == choice.pick.cand
 
 
-def test_a_pick_the_model_got_wrong_is_measured_and_moved(tmp_path, monkeypatch):
+@pytest.mark.parametrize("max_checks, exponent", [(2, 2.0), (1, 2.5)])
+def test_a_pick_the_model_got_wrong_is_measured_and_moved(tmp_path, monkeypatch, max_checks, exponent):
     """The model extrapolates from the coarsest dx; a machine whose cost grows faster than the particle count
-    (here 4x per doubling) makes the first pick too fine: measuring it moves the pick coarser, and the pick
-    that is kept is one a measurement confirms."""
+    (RTF ~ n^-exponent) makes the first pick too fine: measuring it moves the pick coarser, and the pick that is
+    kept is one a measurement confirms, also when the checks run out before a prediction holds (one check at
+    n^-2.5: the moved pick, dx 0.101, is a count nobody measured, and the measured one that reaches real time,
+    the coarsest, replaces it)."""
     monkeypatch.setenv(realtime_measure.CACHE_ENV, str(tmp_path))
+    monkeypatch.setattr(realtime_measure, "MAX_CHECKS", max_checks)
     cfg = load_config(DAM, ["realtime.min_particles_across=8"])
     cands = realtime_measure.candidates(cfg, "wcsph")
     n0 = cands[0].n
-    true_rtf = {c.n: 3.0 * (n0 / c.n) ** 2 for c in cands}  # RTF 3 at the coarsest
+    true_rtf = {c.n: 3.0 * (n0 / c.n) ** exponent for c in cands}  # RTF 3 at the coarsest
 
     def fake_measure(c):
         cand = next(x for x in cands if math.isclose(x.dx, c.particles.dx))
@@ -214,8 +218,12 @@ def test_a_pick_the_model_got_wrong_is_measured_and_moved(tmp_path, monkeypatch)
     assert checks, logged  # the proportional model picked finer than the truth allows
     best_true = min((c for c in cands if true_rtf[c.n] >= cfg.realtime.margin), key=lambda c: c.dx)
     assert choice.pick.cand.dx >= best_true.dx - 1e-12  # never finer than the machine can run
-    assert true_rtf[choice.pick.cand.n] >= cfg.realtime.margin or len(checks) == realtime_measure.MAX_CHECKS
-    assert choice.pick.rtf == pytest.approx(true_rtf[choice.pick.cand.n]) or len(checks) == realtime_measure.MAX_CHECKS
+    assert len(checks) <= max_checks
+    measured = {json_sample["n"] for json_sample in next(iter(json.loads(
+        (tmp_path / "realtime.json").read_text()).values()))["samples"]}
+    assert choice.pick.cand.n in measured and choice.pick.reaches  # the run starts on a measured count
+    assert true_rtf[choice.pick.cand.n] >= cfg.realtime.margin
+    assert choice.pick.rtf == pytest.approx(true_rtf[choice.pick.cand.n])
 
 
 def test_a_coarser_spacing_grows_the_domain_to_hold_the_thicker_walls():

@@ -169,7 +169,8 @@ class Choice:
 def choose(cfg: Config, solvers: list[str], *, view: bool, log=print) -> Choice:
     """Measure (or read the cache), predict every candidate, pick dx per solver and the solver. A pick at a
     particle count no sample has is measured before it is trusted (the window compiles it anyway: the measured
-    solver is the one it runs); if the prediction was wrong, the pick moves, up to MAX_CHECKS measurements."""
+    solver is the one it runs); if the prediction was wrong, the pick moves, up to MAX_CHECKS measurements, and
+    a pick still unmeasured after them gives way to a measured one that reaches real time (`confirmed_pick`)."""
     picks, shares, measured = [], {}, set()
     last = None  # (solver, dx, the measured solver, its memento) of the latest measurement: each resets Taichi
     for solver in solvers:
@@ -190,7 +191,7 @@ def choose(cfg: Config, solvers: list[str], *, view: bool, log=print) -> Choice:
             samples, last = _measure_into(cfg, solver, pick.cand, samples, log)
             measured.add(solver)
             pick = pick_dx(solver, samples, cands, cfg.realtime.margin, shares[solver])
-        picks.append(pick)
+        picks.append(confirmed_pick(pick, samples, cands, cfg.realtime.margin, shares[solver]))
     best = pick_solver(picks) if len(picks) > 1 else picks[0]
     prepared = None
     if last is not None and last[:2] == (best.solver, best.cand.dx):
@@ -198,6 +199,17 @@ def choose(cfg: Config, solvers: list[str], *, view: bool, log=print) -> Choice:
     line = describe(best, device_label(cfg.arch), shares[best.solver])
     return Choice(best, at_dx(cfg, best.cand.dx, best.solver), line, shares[best.solver], prepared,
                   best.solver in measured)
+
+
+def confirmed_pick(pick: Pick, samples: list[Sample], cands: list[Candidate], margin: float, share: float) -> Pick:
+    """`pick` if a sample stands at its particle count; else (the checks ran out on predictions that moved) the
+    finest measured candidate that reaches `margin`, so that the run starts on a measured count, which the last
+    check may have left compiled; none measured reaches it: `pick` (the model's best guess)."""
+    if any(s.n == pick.cand.n for s in samples):
+        return pick
+    measured = [c for c in cands if any(s.n == c.n for s in samples)]
+    fallback = pick_dx(pick.solver, samples, measured, margin, share) if measured else None
+    return fallback if fallback is not None and fallback.reaches else pick
 
 
 def _measure_into(cfg: Config, solver: str, cand: Candidate, samples: list[Sample], log) -> tuple[list[Sample], tuple]:
