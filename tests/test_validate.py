@@ -290,6 +290,20 @@ def test_the_standing_wave_is_judged_at_two_resolutions_the_finer_2x():
     assert failed[0]["metric"] == "period error at dx 0.0125" and failed[0]["status"] == "failed: boom"
 
 
+def test_the_3d_wave_is_reported_at_the_2d_waves_resolution_too():
+    """The bundled 3D wave (20 particles over the depth) is the cheap check; the full report adds both solvers at 40
+    over the depth (the 2D scene's dx, 64k fluid particles), --quick does not."""
+    path = BUNDLED / "standing_wave_3d.yaml"
+    own = load_config(path).particles.dx
+    assert own == pytest.approx(0.05)
+    cases = scene_cases(path, quick=False, overrides=[])
+    assert [(c.name, c.cfg.particles.dx) for c in cases] == [
+        ("standing_wave_3d-wcsph", own), ("standing_wave_3d-isph", own),
+        ("standing_wave_3d-wcsph-dx0.025", 0.025), ("standing_wave_3d-isph-dx0.025", 0.025)]
+    assert [c.name for c in scene_cases(path, quick=True, overrides=[])] == ["standing_wave_3d-wcsph",
+                                                                             "standing_wave_3d-isph"]
+
+
 def test_the_re100_cavitys_final_output_target_is_isphs():
     """Issue 26: the Re 100 cavity's final-output RMS <= 0.006 for ISPH; WCSPH's final output gets no verdict."""
     cfg = load_config(BUNDLED / "cavity_2d.yaml")
