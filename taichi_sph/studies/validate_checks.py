@@ -106,7 +106,7 @@ def checks_for(cfg: Config, spec: Metric) -> tuple[Check, ...]:
 # (`<scene>-<solver>-dx<dx>`, its rows labelled "at dx ..."). Issue 23 judges the standing wave at two resolutions,
 # the finer 2x: 40 and 80 particles over the depth (the finer runs take ~200 s (WCSPH) and ~35 s (ISPH) on one
 # thread). The 3D wave's bundled 20 particles over the depth (8k fluid) is the cheap check; at 40 (64k fluid + 55k
-# wall particles; ISPH ~4 min, WCSPH ~50 min on one thread) the report shows what the 3D wave does at the 2D scene's
+# wall particles; ISPH ~4 min, WCSPH ~76 min on one thread) the report shows what the 3D wave does at the 2D scene's
 # resolution. Not with --quick, whose waves are already the coarse ones.
 FINER: dict[str, tuple[float, ...]] = {"standing_wave_2d": (0.0125,), "standing_wave_3d": (0.025,)}
 
