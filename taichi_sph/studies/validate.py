@@ -9,8 +9,9 @@ the config files, and one figure per scene (validate_figures.py) in `<report ste
 convergence study (validate_convergence.py: the Taylor-Green vortex at 4 spacings) add its runs and a section with
 the observed order; scenes with finer spacings (validate_checks.FINER: the 2D standing wave at d/80 besides d/40, as
 issue 23 judges it, and the 3D one at d/40 besides d/20) add a case per solver and spacing whose rows say "at
-dx ...". Only the header line carries a date, and every run's CPU loops run on one thread (LOOP_SCHEDULE), so a rerun on the same machine and build rewrites
-the same table to the digit (another machine or build: up to run-to-run noise).
+dx ...". Only the header line carries a date, and every run's CPU loops run on one thread (LOOP_SCHEDULE), so a
+rerun on the same machine and build rewrites the same table to the digit (another machine or build: up to run-to-run
+noise).
 
 A run that fails or ends unstable is a row saying so; the command then exits as compare and sweep do
 (compare.batch_exit_code: 130 interrupted, 1 failed, 3 unstable, else 0). A missed target is a status in the
