@@ -167,8 +167,9 @@ def test_solver_auto_needs_realtime(capsys):
 def test_real_measurement_and_choice_on_a_tiny_scene(tmp_path, monkeypatch):
     """A few real WCSPH steps on a 1D column (compiles in seconds): the sample, the rewound solver, the choice
     line, the cached sample used the second time without measuring (or, where the first launch's check moved the
-    pick to a count nobody measured and the run fell back on a measured one, that count checked). One check (each compiles a particle count,
-    ~20 s here; test_a_pick_the_model_got_wrong_is_measured_and_moved takes the second on fake samples)."""
+    pick to a count nobody measured and the run fell back on a measured one, that count checked). One check (each
+    compiles a particle count, ~20 s here; test_a_pick_the_model_got_wrong_is_measured_and_moved takes the second
+    on fake samples)."""
     monkeypatch.setenv(realtime_measure.CACHE_ENV, str(tmp_path))
     monkeypatch.setattr(realtime_measure, "MAX_CHECKS", 1)
     cfg = load_config(ROOT / "configs" / "column_1d.yaml", ["realtime.min_particles_across=20"])

@@ -205,9 +205,10 @@ def confirmed_pick(pick: Pick, samples: list[Sample], cands: list[Candidate], ma
     """`pick` if a sample stands at its particle count; else (the checks ran out on predictions that moved) the
     finest measured candidate that reaches `margin`, so that the run starts on a measured count, which the last
     check may have left compiled; none measured reaches it: `pick` (the model's best guess)."""
-    if any(s.n == pick.cand.n for s in samples):
+    counts = {s.n for s in samples}
+    if pick.cand.n in counts:
         return pick
-    measured = [c for c in cands if any(s.n == c.n for s in samples)]
+    measured = [c for c in cands if c.n in counts]
     fallback = pick_dx(pick.solver, samples, measured, margin, share) if measured else None
     return fallback if fallback is not None and fallback.reaches else pick
 
