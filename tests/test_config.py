@@ -6,6 +6,7 @@ Bad input through the CLI (messages, exit codes, nothing written) is tests/test_
 
 import dataclasses
 import math
+import re
 import typing
 from pathlib import Path
 
@@ -370,6 +371,15 @@ def test_config_reference_lists_every_leaf_key():
                 "bodies[].velocity", "probes[].position", "metrics[].type", "time.t_end"):
         assert f"| `{key}` |" in ref
     assert "`wendland_c2`" in ref and "m/s" in ref
+
+
+def test_config_reference_rows_have_four_cells():
+    """A '|' in a key's doc (|v|, ||b - A p||) is escaped: unescaped it ended the cell, and 14 of the 151 rows
+    rendered with extra columns."""
+    rows = [line for line in config_reference().splitlines() if line.startswith("| `")]
+    assert len(rows) > 100
+    assert all(len(re.findall(r"(?<!\\)\|", row)) == 5 for row in rows)
+    assert "\\|" in config_reference()  # the escape is used (shifting.max_shift's |dr_a|, the guards' |rho - rho0|)
 
 
 def test_docs_config_reference_is_current():

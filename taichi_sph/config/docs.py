@@ -9,6 +9,11 @@ from taichi_sph.config.loader import is_dataclass_type, list_item_type, section_
 from taichi_sph.config.schema import Config
 
 
+def table_cell(text: str) -> str:
+    """Text for a Markdown table cell: a '|' in it (|v|, ||b - A p||) would end the cell, so it is escaped."""
+    return text.replace("|", "\\|")
+
+
 def config_reference() -> str:
     """Markdown table of every key: default, unit, meaning and allowed values."""
     rows = ["| key | default | unit | meaning |", "|---|---|---|---|"]
@@ -28,14 +33,14 @@ def config_reference() -> str:
             default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
             if section is not None and default is None:  # an optional section
                 doc = f.metadata.get("doc", "")
-                rows.append(f"| `{key}` |  |  | {doc}; null = none; its keys: |")
+                rows.append(f"| `{key}` |  |  | {table_cell(doc)}; null = none; its keys: |")
                 walk(section, key + ".")
                 continue
             doc = f.metadata.get("doc", "")
             if f.metadata.get("choices"):
                 doc += " (one of: " + ", ".join(f"`{c}`" for c in f.metadata["choices"]) + ")"
             dflt = "" if default is None else f"`{to_dict(default)}`"
-            rows.append(f"| `{key}` | {dflt} | {f.metadata.get('unit', '')} | {doc} |")
+            rows.append(f"| `{key}` | {dflt} | {f.metadata.get('unit', '')} | {table_cell(doc)} |")
 
     walk(Config, "")
     return "\n".join(rows)
