@@ -9,9 +9,10 @@ from taichi_sph.config.loader import is_dataclass_type, list_item_type, section_
 from taichi_sph.config.schema import Config
 
 
-def table_cell(text: str) -> str:
-    """Text for a Markdown table cell: a '|' in it (|v|, ||b - A p||) would end the cell, so it is escaped."""
-    return text.replace("|", "\\|")
+def table_cell(text) -> str:
+    """Text for a Markdown table cell (this reference's, and the study reports'): a '|' in it (|v|, ||b - A p||)
+    would end the cell, so it is escaped, and a line break would end the row, so it becomes a space."""
+    return str(text).replace("|", "\\|").replace("\n", " ")
 
 
 def config_reference() -> str:

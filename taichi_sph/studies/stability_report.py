@@ -3,6 +3,7 @@ notes, and the stability map's table."""
 
 from __future__ import annotations
 
+from taichi_sph.config.docs import table_cell
 from taichi_sph.studies.stability_verdicts import ENERGY_GROWTH_LIMIT
 from taichi_sph.studies.table import format_value
 
@@ -23,7 +24,7 @@ def _why(row: dict) -> str:
     if anyway:
         text += f" [run anyway: {anyway['verdict']}" + (f", {anyway['criterion']}" if anyway.get("criterion") else "") + \
                 (f", max density error {format_value(anyway.get('max_density_error'))}" if anyway.get("max_density_error") is not None else "") + "]"
-    return text.replace("|", "\\|")  # a pipe inside a table cell
+    return table_cell(text)
 
 
 def stability_markdown(result: dict) -> str:

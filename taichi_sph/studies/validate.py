@@ -30,6 +30,7 @@ from dataclasses import dataclass, replace
 from datetime import date
 from pathlib import Path
 
+from taichi_sph.config.docs import table_cell
 from taichi_sph.config.loader import bundled_configs_dir, load_config, load_raw
 from taichi_sph.config.schema import Config
 from taichi_sph.errors import SPHError, UsageError
@@ -190,10 +191,6 @@ def case_rows(case: Case, summary: dict | None) -> list[dict]:
     return rows
 
 
-def _cell(text: str) -> str:
-    return str(text).replace("|", "\\|").replace("\n", " ")
-
-
 SUMMARY_COLUMNS = ("scene", "metric", "WCSPH", "ISPH", "reference / target")
 SUMMARY_BEGIN = "<!-- validation summary: begin -->"
 SUMMARY_END = "<!-- validation summary: end -->"
@@ -221,14 +218,14 @@ def summary_table(rows: list[dict], orders: list[tuple[str, str, str, str]] = ()
         reference = next((r["reference"] for r in solvers.values() if r["reference"] != "-"), "-")
         cells = (f"`{scene}`", metric, _summary_cell(solvers.get("wcsph")), _summary_cell(solvers.get("isph")),
                  reference)
-        lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+        lines.append("| " + " | ".join(table_cell(c) for c in cells) + " |")
     studies: dict[tuple[str, str], dict[str, str]] = {}
     for scene, metric, solver, cell in orders:
         studies.setdefault((scene, metric), {})[solver] = cell
     for (scene, metric), cells in studies.items():
-        lines.append("| " + " | ".join(_cell(c) for c in (f"`{scene}`", metric, cells.get("wcsph", "-"),
-                                                         cells.get("isph", "-"),
-                                                         f"observed order; target >= {ORDER_TARGET:g}")) + " |")
+        order_cells = (f"`{scene}`", metric, cells.get("wcsph", "-"), cells.get("isph", "-"),
+                       f"observed order; target >= {ORDER_TARGET:g}")
+        lines.append("| " + " | ".join(table_cell(c) for c in order_cells) + " |")
     return lines + [SUMMARY_END]
 
 
@@ -250,7 +247,7 @@ def report_markdown(rows: list[dict], figures: dict[str, str], *, quick: bool, c
     lines += ["| " + " | ".join(COLUMNS) + " |", "|" + "---|" * len(COLUMNS)]
     for r in rows:
         cells = (r["scene"], r["solver"], r["metric"], r["ours"], r["reference"], r["resolution"], r["wall"], r["status"])
-        lines.append("| " + " | ".join(_cell(c) for c in cells) + " |")
+        lines.append("| " + " | ".join(table_cell(c) for c in cells) + " |")
     lines += ["", "Wall time: the time steps only (compile time apart), on the machine of the header line. Status: "
               "`meets target` / `misses target` where a target is documented (validate_checks.py names its source), "
               "`no target` otherwise; `failed` and `unstable` runs make the command exit non-zero.", ""]
